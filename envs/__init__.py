@@ -1,0 +1,56 @@
+"""MJX-backed locomotion environments with perturbation tasks as data.
+
+Installed as ``minatt_jax.envs`` (the repository's top-level ``envs/`` folder), so the import name
+cannot collide with other distributions. ``make(name)`` builds an environment; ``task_set(env,
+set_name)`` returns a stacked :class:`Task` set for meta-training or meta-testing.
+"""
+
+from __future__ import annotations
+
+from minatt_jax.envs.base import LocomotionEnv
+from minatt_jax.envs.halfcheetah import HalfCheetah
+from minatt_jax.envs.hopper import Hopper
+from minatt_jax.envs.humanoid import Humanoid
+from minatt_jax.envs.mjcf import PHYSICS_PRESETS, PhysicsOptions
+from minatt_jax.envs.task_sets import TASK_SET_NAMES, task_list, task_set
+from minatt_jax.envs.tasks import Task, apply_task, num_tasks, sample_task, select_task, stack_tasks
+from minatt_jax.envs.walker2d import Walker2d
+
+ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
+    "hopper": Hopper,
+    "halfcheetah": HalfCheetah,
+    "walker2d": Walker2d,
+    "humanoid": Humanoid,
+}
+ENV_NAMES = tuple(ENVIRONMENTS)
+
+
+class UnknownNameError(ValueError):
+    """An environment, task set or physics preset name that does not exist."""
+
+
+def make(name: str, physics: str | PhysicsOptions = "fast") -> LocomotionEnv:
+    """The environment ``name`` (one of ``ENV_NAMES``) with the given physics preset."""
+    if name not in ENVIRONMENTS:
+        raise UnknownNameError(f"unknown environment {name!r}; choose from {', '.join(ENV_NAMES)}")
+    if isinstance(physics, str) and physics not in PHYSICS_PRESETS:
+        raise UnknownNameError(
+            f"unknown physics preset {physics!r}; choose from {', '.join(PHYSICS_PRESETS)}"
+        )
+    return ENVIRONMENTS[name](physics)
+
+
+def check_task_set_name(set_name: str) -> None:
+    """Raises UnknownNameError for a task-set name that does not exist."""
+    if set_name not in TASK_SET_NAMES:
+        raise UnknownNameError(
+            f"unknown variant {set_name!r}; choose from {', '.join(TASK_SET_NAMES)}"
+        )
+
+
+__all__ = [
+    "ENV_NAMES", "ENVIRONMENTS", "PHYSICS_PRESETS", "TASK_SET_NAMES", "HalfCheetah", "Hopper",
+    "Humanoid", "LocomotionEnv", "PhysicsOptions", "Task", "UnknownNameError", "Walker2d",
+    "apply_task", "check_task_set_name", "make", "num_tasks", "sample_task", "select_task",
+    "stack_tasks", "task_list", "task_set",
+]

@@ -1,0 +1,154 @@
+"""An MJX locomotion environment with Brax's ``Env`` interface and tasks as data.
+
+Why our own class rather than brax's ``PipelineEnv``: brax's MJX pipeline computes brax transforms
+and reformats contacts after every physics step (work nothing here reads), its asset files change
+the Gym models (moved root joints, other contact dimensions), and applying a traced task needs the
+model swapped per call anyway. This class keeps brax's ``State``/``Env`` API, so brax wrappers
+still apply, and steps ``mjx.step`` directly on the Gym model.
+
+Subclasses define the Gym v3 semantics of each environment: observation, reward terms and health.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from brax.envs.base import Env, State
+from mujoco import mjx
+
+from minatt_jax.envs import mjcf
+from minatt_jax.envs.tasks import NominalModelFields, Task, apply_task, nominal_task
+
+
+@dataclasses.dataclass(frozen=True)
+class RewardWeights:
+    """Gym v3 reward weights (forward, control cost, healthy bonus)."""
+
+    forward: float
+    ctrl_cost: float
+    healthy: float
+
+
+class LocomotionEnv(Env, abc.ABC):
+    """A Gym-v3 locomotion task on MJX with per-episode task parameters.
+
+    ``state.info['task']`` holds the :class:`Task` applied in every step; ``reset(rng, task)``
+    sets it. Observations, rewards and termination follow Gym v3 (see each subclass).
+    """
+
+    name: str = ""
+    frame_skip: int = 1
+    reset_noise_scale: float = 0.0
+    weights: RewardWeights = RewardWeights(1.0, 0.0, 0.0)
+    terminates: bool = True
+    # Observation index names for analysis (heatmaps); filled by subclasses.
+    obs_names: tuple[str, ...] = ()
+
+    def __init__(self, physics: str | mjcf.PhysicsOptions = "fast") -> None:
+        options = mjcf.PHYSICS_PRESETS[physics] if isinstance(physics, str) else physics
+        self.physics_options = options
+        self.mj_model: mujoco.MjModel = mjcf.load_model(self.name, options)
+        self.mjx_model: mjx.Model = mjx.put_model(self.mj_model)
+        self.nominal_fields = NominalModelFields.from_model(self.mjx_model)
+        self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
+        self._init_qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
+        self._init_qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
+        self._obs_size = int(self.observation(mjx.make_data(self.mjx_model)).shape[-1])
+
+    # ---- Brax Env interface -------------------------------------------------------------
+    @property
+    def observation_size(self) -> int:
+        return self._obs_size
+
+    @property
+    def action_size(self) -> int:
+        return int(self.mj_model.nu)
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    def nominal_task(self) -> Task:
+        """This environment's unperturbed task."""
+        return nominal_task(self.mj_model.nbody, self.mj_model.nu)
+
+    def reset(self, rng: jax.Array, task: Task | None = None) -> State:
+        """Initial state with Gym v3 reset noise; ``task`` defaults to the nominal task."""
+        task = self.nominal_task() if task is None else task
+        rng, key_q, key_v = jax.random.split(rng, 3)
+        qpos, qvel = self.reset_noise(key_q, key_v)
+        model = apply_task(self.mjx_model, self.nominal_fields, task)
+        data = mjx.make_data(model).replace(qpos=qpos, qvel=qvel)
+        data = mjx.forward(model, data)
+        zero = jnp.zeros((), jnp.float32)
+        metrics = {k: zero for k in self.metric_names()}
+        info: dict[str, Any] = {"task": task, "rng": rng, "steps": jnp.zeros((), jnp.int32)}
+        return State(data, self.observation(data), zero, zero, metrics, info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One environment step (``frame_skip`` physics steps) under the state's task."""
+        model = apply_task(self.mjx_model, self.nominal_fields, state.info["task"])
+        data0 = state.pipeline_state
+
+        def physics_step(data: mjx.Data, _: None) -> tuple[mjx.Data, None]:
+            return mjx.step(model, data), None
+
+        data, _ = jax.lax.scan(physics_step, data0.replace(ctrl=action), None, self.frame_skip)
+        terms = self.reward_terms(model, data0, data, action)
+        healthy = self.is_healthy(data)
+        reward = (
+            self.weights.forward * terms["forward"]
+            - self.weights.ctrl_cost * terms["ctrl"]
+            + self.weights.healthy * jnp.ones_like(terms["forward"])
+        )
+        done = jnp.where(self.terminates, 1.0 - healthy, 0.0)
+        metrics = {
+            "reward_forward": self.weights.forward * terms["forward"],
+            "reward_ctrl": -self.weights.ctrl_cost * terms["ctrl"],
+            "reward_healthy": self.weights.healthy * jnp.ones_like(terms["forward"]),
+            "x_position": data.qpos[0],
+            "x_velocity": terms["forward"],
+        }
+        info = {**state.info, "steps": state.info["steps"] + 1}
+        return state.replace(
+            pipeline_state=data,
+            obs=self.observation(data),
+            reward=reward.astype(jnp.float32),
+            done=done.astype(jnp.float32),
+            metrics=metrics,
+            info=info,
+        )
+
+    # ---- Gym v3 semantics (overridden per environment) -----------------------------------
+    @staticmethod
+    def metric_names() -> tuple[str, ...]:
+        return ("reward_forward", "reward_ctrl", "reward_healthy", "x_position", "x_velocity")
+
+    def reset_noise(self, key_q: jax.Array, key_v: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Gym's default: uniform noise of ``reset_noise_scale`` on qpos and qvel."""
+        c = self.reset_noise_scale
+        qpos = self._init_qpos + jax.random.uniform(key_q, self._init_qpos.shape, minval=-c, maxval=c)
+        qvel = self._init_qvel + jax.random.uniform(key_v, self._init_qvel.shape, minval=-c, maxval=c)
+        return qpos, qvel
+
+    def reward_terms(
+        self, model: mjx.Model, before: mjx.Data, after: mjx.Data, action: jax.Array
+    ) -> dict[str, jax.Array]:
+        """Unweighted reward terms: forward velocity of the root and sum of squared actions."""
+        del model
+        forward = (after.qpos[0] - before.qpos[0]) / self.dt
+        return {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
+
+    @abc.abstractmethod
+    def observation(self, data: mjx.Data) -> jax.Array:
+        """Gym v3 observation from physics data."""
+
+    def is_healthy(self, data: mjx.Data) -> jax.Array:
+        """1.0 while the agent is healthy (Gym v3 ``is_healthy``); always 1 by default."""
+        del data
+        return jnp.ones((), jnp.float32)

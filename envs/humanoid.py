@@ -1,0 +1,54 @@
+"""Humanoid (Gym v3 physics, MBPO's truncated 45-dim observation): 17 actions, frame skip 5."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from minatt_jax.envs.base import LocomotionEnv, RewardWeights
+from minatt_jax.envs.mjcf import PhysicsOptions
+
+
+class Humanoid(LocomotionEnv):
+    """Gym v3 Humanoid with MBPO's ``HumanoidTruncatedObs``: obs = qpos[2:] (22) and qvel (23).
+
+    Reward = 1.25 * centre-of-mass x velocity + 5 - 0.1 |a|^2; ends unless 1 < z < 2. Gym v3's
+    contact cost (5e-7 |cfrc_ext|^2) is left out: MJX does not compute ``cfrc_ext``, and under
+    MuJoCo >= 2.0 Gym v3 read it as zeros anyway, so the papers' numbers had no contact cost.
+    """
+
+    name = "humanoid"
+    frame_skip = 5
+    reset_noise_scale = 1e-2
+    weights = RewardWeights(forward=1.25, ctrl_cost=0.1, healthy=5.0)
+
+    def __init__(self, physics: str | PhysicsOptions = "fast") -> None:
+        super().__init__(physics)
+        # qpos[2:]: root z, root quaternion (w, x, y, z), then the hinge angles; qvel: root linear
+        # and angular velocity, then the hinge velocities.
+        hinges = [self.mj_model.joint(j).name for j in range(1, self.mj_model.njnt)]
+        self.obs_names = (
+            ("root_z", "root_qw", "root_qx", "root_qy", "root_qz", *hinges)
+            + ("vel_root_x", "vel_root_y", "vel_root_z", "angvel_root_x", "angvel_root_y")
+            + ("angvel_root_z", *(f"vel_{h}" for h in hinges))
+        )
+
+    def observation(self, data: mjx.Data) -> jax.Array:
+        return jnp.concatenate([data.qpos[2:], data.qvel])
+
+    def reward_terms(
+        self, model: mjx.Model, before: mjx.Data, after: mjx.Data, action: jax.Array
+    ) -> dict[str, jax.Array]:
+        """Forward term from the centre of mass (Gym v3's ``mass_center``)."""
+        mass = model.body_mass
+
+        def com_x(data: mjx.Data) -> jax.Array:
+            return jnp.sum(mass * data.xipos[:, 0]) / jnp.sum(mass)
+
+        forward = (com_x(after) - com_x(before)) / self.dt
+        return {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
+
+    def is_healthy(self, data: mjx.Data) -> jax.Array:
+        z = data.qpos[2]
+        return ((z > 1.0) & (z < 2.0)).astype(jnp.float32)

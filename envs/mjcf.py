@@ -1,0 +1,106 @@
+"""Loads the Gym v3 MuJoCo models and applies the MJX solver settings.
+
+The MJCF files are the ones Gym's v3 locomotion tasks use; they are read from the installed
+``gymnasium`` distribution (a pure-Python dependency that is never imported), so the physical
+model is exactly Gym's. MJX cannot run every option those files set (Humanoid asks for the PGS
+solver), and some settings cost far more under MJX than they buy, so :func:`load_model` applies
+named :class:`PhysicsOptions`: ``gym`` keeps everything Gym sets that MJX can run, ``fast`` is the
+tuned default measured in ``benchmarks/env_throughput.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import os
+
+import mujoco
+
+# Gym file name for each environment.
+_ASSET_FILES = {
+    "hopper": "hopper.xml",
+    "halfcheetah": "half_cheetah.xml",
+    "walker2d": "walker2d.xml",  # the v2-v4 model (left foot friction 1.9), not walker2d_v5.xml
+    "humanoid": "humanoid.xml",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsOptions:
+    """MuJoCo solver settings applied on top of the Gym MJCF.
+
+    Attributes:
+      integrator: "rk4", "euler" or None (keep the file's).
+      iterations: constraint-solver iterations, or None (keep the file's).
+      ls_iterations: line-search iterations, or None (keep the file's).
+      floor_contacts_only: keep only body-vs-floor contact pairs (drops self-collisions).
+    """
+
+    integrator: str | None = None
+    iterations: int | None = None
+    ls_iterations: int | None = None
+    floor_contacts_only: bool = False
+
+
+PHYSICS_PRESETS: dict[str, PhysicsOptions] = {
+    # Gym's own settings, except what MJX lacks (PGS -> Newton, MuJoCo's default 100 iterations).
+    "gym": PhysicsOptions(),
+    # Measured in benchmarks/env_throughput.py: Euler (semi-implicit, implicit joint damping),
+    # 4 Newton iterations with 8 line-search steps, and body-vs-floor contacts only.
+    "fast": PhysicsOptions(
+        integrator="euler", iterations=4, ls_iterations=8, floor_contacts_only=True
+    ),
+}
+
+
+def asset_path(env_name: str) -> str:
+    """Path of the Gym MJCF file for ``env_name`` inside the installed gymnasium package."""
+    spec = importlib.util.find_spec("gymnasium")
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError(
+            "the gymnasium package (which ships the Gym MuJoCo model files) is not installed; "
+            "reinstall minatt-jax with its dependencies"
+        )
+    root = list(spec.submodule_search_locations)[0]
+    path = os.path.join(root, "envs", "mujoco", "assets", _ASSET_FILES[env_name])
+    if not os.path.exists(path):
+        raise RuntimeError(f"model file missing from gymnasium: {path}")
+    return path
+
+
+def load_model(env_name: str, options: PhysicsOptions) -> mujoco.MjModel:
+    """The Gym MJCF model of ``env_name`` with ``options`` applied (a MuJoCo C model)."""
+    model = mujoco.MjModel.from_xml_path(asset_path(env_name))
+    if model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
+        # MJX implements only CG and Newton; Newton is MuJoCo's default.
+        model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+        model.opt.iterations = 100
+    if options.integrator is not None:
+        model.opt.integrator = {
+            "euler": mujoco.mjtIntegrator.mjINT_EULER,
+            "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+        }[options.integrator]
+    if options.iterations is not None:
+        model.opt.iterations = options.iterations
+    if options.ls_iterations is not None:
+        model.opt.ls_iterations = options.ls_iterations
+    if options.floor_contacts_only:
+        _keep_floor_contacts(model)
+    return model
+
+
+def _keep_floor_contacts(model: mujoco.MjModel) -> None:
+    """Rewrites contype/conaffinity so that only world-body geoms collide with body geoms.
+
+    Body geoms get contype 2 and conaffinity 0, world geoms (the floor) contype 0 and
+    conaffinity 2: a pair collides when (contype_a & conaffinity_b) | (contype_b & conaffinity_a)
+    is nonzero, which now holds only for body-floor pairs.
+    """
+    for g in range(model.ngeom):
+        collides = model.geom_contype[g] or model.geom_conaffinity[g]
+        if not collides:
+            continue
+        if model.geom_bodyid[g] == 0:
+            model.geom_contype[g], model.geom_conaffinity[g] = 0, 2
+        else:
+            model.geom_contype[g], model.geom_conaffinity[g] = 2, 0
