@@ -13,7 +13,15 @@ from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, PhysicsOptions
 from minatt_jax.envs.task_sets import TASK_SET_NAMES, task_list, task_set
-from minatt_jax.envs.tasks import Task, apply_task, num_tasks, sample_task, select_task, stack_tasks
+from minatt_jax.envs.tasks import (
+    Task,
+    apply_task,
+    make_task,
+    num_tasks,
+    sample_task,
+    select_task,
+    stack_tasks,
+)
 from minatt_jax.envs.walker2d import Walker2d
 
 ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
@@ -49,8 +57,26 @@ def check_task_set_name(set_name: str) -> None:
 
 
 __all__ = [
-    "ENV_NAMES", "ENVIRONMENTS", "PHYSICS_PRESETS", "TASK_SET_NAMES", "HalfCheetah", "Hopper",
-    "Humanoid", "LocomotionEnv", "PhysicsOptions", "Task", "UnknownNameError", "Walker2d",
-    "apply_task", "check_task_set_name", "make", "num_tasks", "sample_task", "select_task",
-    "stack_tasks", "task_list", "task_set",
+    "ENV_NAMES",
+    "ENVIRONMENTS",
+    "PHYSICS_PRESETS",
+    "TASK_SET_NAMES",
+    "HalfCheetah",
+    "Hopper",
+    "Humanoid",
+    "LocomotionEnv",
+    "PhysicsOptions",
+    "Task",
+    "UnknownNameError",
+    "Walker2d",
+    "apply_task",
+    "check_task_set_name",
+    "make",
+    "make_task",
+    "num_tasks",
+    "sample_task",
+    "select_task",
+    "stack_tasks",
+    "task_list",
+    "task_set",
 ]

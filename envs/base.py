@@ -22,7 +22,7 @@ from brax.envs.base import Env, State
 from mujoco import mjx
 
 from minatt_jax.envs import mjcf
-from minatt_jax.envs.tasks import NominalModelFields, Task, apply_task, nominal_task
+from minatt_jax.envs.tasks import NominalModelFields, Task, apply_task, make_task
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +58,7 @@ class LocomotionEnv(Env, abc.ABC):
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
         self._init_qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
         self._init_qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
+        self._nominal_task = make_task(self.mj_model)
         self._obs_size = int(self.observation(mjx.make_data(self.mjx_model)).shape[-1])
 
     # ---- Brax Env interface -------------------------------------------------------------
@@ -75,7 +76,11 @@ class LocomotionEnv(Env, abc.ABC):
 
     def nominal_task(self) -> Task:
         """This environment's unperturbed task."""
-        return nominal_task(self.mj_model.nbody, self.mj_model.nu)
+        return self._nominal_task
+
+    def make_task(self, **scales: Any) -> Task:
+        """A task for this environment; keywords as :func:`minatt_jax.envs.tasks.make_task`."""
+        return make_task(self.mj_model, **scales)
 
     def reset(self, rng: jax.Array, task: Task | None = None) -> State:
         """Initial state with Gym v3 reset noise; ``task`` defaults to the nominal task."""
@@ -132,8 +137,12 @@ class LocomotionEnv(Env, abc.ABC):
     def reset_noise(self, key_q: jax.Array, key_v: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Gym's default: uniform noise of ``reset_noise_scale`` on qpos and qvel."""
         c = self.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(key_q, self._init_qpos.shape, minval=-c, maxval=c)
-        qvel = self._init_qvel + jax.random.uniform(key_v, self._init_qvel.shape, minval=-c, maxval=c)
+        qpos = self._init_qpos + jax.random.uniform(
+            key_q, self._init_qpos.shape, minval=-c, maxval=c
+        )
+        qvel = self._init_qvel + jax.random.uniform(
+            key_v, self._init_qvel.shape, minval=-c, maxval=c
+        )
         return qpos, qvel
 
     def reward_terms(

@@ -26,7 +26,9 @@ class HalfCheetah(LocomotionEnv):
     def reset_noise(self, key_q: jax.Array, key_v: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Gym v3: uniform(-0.1, 0.1) on qpos, 0.1 * standard normal on qvel."""
         c = self.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(key_q, self._init_qpos.shape, minval=-c, maxval=c)
+        qpos = self._init_qpos + jax.random.uniform(
+            key_q, self._init_qpos.shape, minval=-c, maxval=c
+        )
         qvel = self._init_qvel + c * jax.random.normal(key_v, self._init_qvel.shape)
         return qpos, qvel
 

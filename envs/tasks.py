@@ -8,11 +8,10 @@ vmapped call, does not recompile.
 How each field enters the physics (``apply_task``):
 
 * ``mass_scale`` (per body): ``body_mass`` and ``body_inertia`` scale together (a uniform change of
-  density), so the model stays consistent. The derived constants that MuJoCo's ``mj_setConst``
-  would recompute are updated where MJX reads them: ``body_subtreemass`` scales by the subtree's
-  factor and the inverse weights ``body_invweight0``/``dof_invweight0`` (which set contact and
-  joint-limit softness) by the inverse of the mean factor; for a uniform factor s the first is
-  exact and the second is exact up to joint armature (which does not scale).
+  density), so the model stays consistent. MJX has no ``mj_setConst``, so :func:`make_task` runs
+  MuJoCo's on the host when the task is built and the task carries the derived constants MJX
+  reads (``body_subtreemass`` and the inverse weights ``body_invweight0``/``dof_invweight0``, which
+  set contact and joint-limit softness); with joint armature they do not simply scale by 1/s.
 * ``friction_scale``: multiplies every geom's friction coefficients (MuJoCo takes the larger of
   the two geoms' coefficients per contact, so the contact friction scales by the same factor).
 * ``gravity_scale`` and ``slope`` (radians, positive = uphill): gravity becomes
@@ -25,8 +24,12 @@ How each field enters the physics (``apply_task``):
 
 from __future__ import annotations
 
+import copy
+import functools
+
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from flax import struct
 from mujoco import mjx
@@ -41,16 +44,49 @@ class Task:
     gravity_scale: jax.Array  # ()
     slope: jax.Array  # () radians, positive = uphill
     actuator_scale: jax.Array  # (nu,)
+    # Constants MuJoCo derives from the masses (mj_setConst), computed by make_task.
+    body_subtreemass: jax.Array  # (nbody,)
+    body_invweight0: jax.Array  # (nbody, 2)
+    dof_invweight0: jax.Array  # (nv,)
 
 
-def nominal_task(nbody: int, nu: int) -> Task:
-    """The unperturbed task."""
+def make_task(
+    mj_model: mujoco.MjModel,
+    mass_scale: float | np.ndarray = 1.0,
+    friction_scale: float = 1.0,
+    gravity_scale: float = 1.0,
+    slope: float = 0.0,
+    actuator_scale: float | np.ndarray = 1.0,
+) -> Task:
+    """A task for ``mj_model``, with the mass-derived constants from MuJoCo's ``mj_setConst``.
+
+    Scalars broadcast: ``mass_scale`` to every body, ``actuator_scale`` to every actuator.
+    Raises ValueError for non-finite or non-positive scales.
+    """
+    mass = np.broadcast_to(np.asarray(mass_scale, np.float64), (mj_model.nbody,)).copy()
+    act = np.broadcast_to(np.asarray(actuator_scale, np.float64), (mj_model.nu,)).copy()
+    for label, value in (("mass_scale", mass), ("friction_scale", friction_scale),
+                         ("gravity_scale", gravity_scale)):  # fmt: skip
+        if not np.all(np.isfinite(value)) or np.any(np.asarray(value) <= 0):
+            raise ValueError(f"{label} must be finite and positive, got {value}")
+    if not np.all(np.isfinite(act)) or np.any(act < 0):
+        raise ValueError(f"actuator_scale must be finite and >= 0, got {act}")
+    if not abs(slope) < np.pi / 2:
+        raise ValueError(f"slope must be in (-pi/2, pi/2) radians, got {slope}")
+    scaled = copy.copy(mj_model)
+    scaled.body_mass[:] = mj_model.body_mass * mass
+    scaled.body_inertia[:] = mj_model.body_inertia * mass[:, None]
+    mujoco.mj_setConst(scaled, mujoco.MjData(scaled))
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
     return Task(
-        mass_scale=jnp.ones((nbody,), jnp.float32),
-        friction_scale=jnp.ones((), jnp.float32),
-        gravity_scale=jnp.ones((), jnp.float32),
-        slope=jnp.zeros((), jnp.float32),
-        actuator_scale=jnp.ones((nu,), jnp.float32),
+        mass_scale=f32(mass),
+        friction_scale=f32(friction_scale),
+        gravity_scale=f32(gravity_scale),
+        slope=f32(slope),
+        actuator_scale=f32(act),
+        body_subtreemass=f32(scaled.body_subtreemass),
+        body_invweight0=f32(scaled.body_invweight0),
+        dof_invweight0=f32(scaled.dof_invweight0),
     )
 
 
@@ -81,51 +117,33 @@ class NominalModelFields:
 
     body_mass: jax.Array
     body_inertia: jax.Array
-    body_subtreemass: jax.Array
-    body_invweight0: jax.Array
-    dof_invweight0: jax.Array
     geom_friction: jax.Array
     gravity: jax.Array
     actuator_gainprm: jax.Array
-    body_parentid: np.ndarray = struct.field(pytree_node=False)
 
     @classmethod
     def from_model(cls, model: mjx.Model) -> NominalModelFields:
         return cls(
             body_mass=jnp.asarray(model.body_mass),
             body_inertia=jnp.asarray(model.body_inertia),
-            body_subtreemass=jnp.asarray(model.body_subtreemass),
-            body_invweight0=jnp.asarray(model.body_invweight0),
-            dof_invweight0=jnp.asarray(model.dof_invweight0),
             geom_friction=jnp.asarray(model.geom_friction),
             gravity=jnp.asarray(model.opt.gravity),
             actuator_gainprm=jnp.asarray(model.actuator_gainprm),
-            body_parentid=np.asarray(model.body_parentid),
         )
-
-
-def _subtree_mass(body_mass: jax.Array, parent: np.ndarray) -> jax.Array:
-    """Subtree masses from body masses (bodies are ordered parents first, as in MuJoCo)."""
-    subtree = body_mass
-    for b in range(len(parent) - 1, 0, -1):
-        subtree = subtree.at[parent[b]].add(subtree[b])
-    return subtree
 
 
 def apply_task(model: mjx.Model, nominal: NominalModelFields, task: Task) -> mjx.Model:
     """The MJX model with ``task`` applied; jit- and vmap-safe (task values may be traced)."""
-    mass = nominal.body_mass * task.mass_scale
-    mean_scale = jnp.mean(task.mass_scale[1:])
     g = jnp.linalg.norm(nominal.gravity) * task.gravity_scale
     gravity = g * jnp.stack([-jnp.sin(task.slope), 0.0 * task.slope, -jnp.cos(task.slope)])
     gain = nominal.actuator_gainprm.at[:, 0].multiply(task.actuator_scale)
     return model.tree_replace(
         {
-            "body_mass": mass,
+            "body_mass": nominal.body_mass * task.mass_scale,
             "body_inertia": nominal.body_inertia * task.mass_scale[:, None],
-            "body_subtreemass": _subtree_mass(mass, nominal.body_parentid),
-            "body_invweight0": nominal.body_invweight0 / mean_scale,
-            "dof_invweight0": nominal.dof_invweight0 / mean_scale,
+            "body_subtreemass": task.body_subtreemass,
+            "body_invweight0": task.body_invweight0,
+            "dof_invweight0": task.dof_invweight0,
             "geom_friction": nominal.geom_friction * task.friction_scale,
             "opt.gravity": gravity,
             "actuator_gainprm": gain,

@@ -9,7 +9,12 @@ import pytest
 
 import minatt_jax.envs as envs
 
-EXPECTED_DIMS = {"hopper": (11, 3), "halfcheetah": (17, 6), "walker2d": (17, 6), "humanoid": (45, 17)}
+EXPECTED_DIMS = {
+    "hopper": (11, 3),
+    "halfcheetah": (17, 6),
+    "walker2d": (17, 6),
+    "humanoid": (45, 17),
+}
 
 
 @pytest.mark.parametrize("name", envs.ENV_NAMES)
@@ -63,7 +68,7 @@ def test_matches_mujoco_c_engine(make_env, name):
     float32, and the difference grows with time in these chaotic systems)."""
     env = make_env(name)
     steps = 20
-    state = env.reset(jax.random.PRNGKey(1))
+    state = jax.jit(env.reset)(jax.random.PRNGKey(1))
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, env.action_size)).astype(np.float32)
     m = env.mj_model
     d = mujoco.MjData(m)
