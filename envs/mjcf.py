@@ -34,12 +34,19 @@ class PhysicsOptions:
       iterations: constraint-solver iterations, or None (keep the file's).
       ls_iterations: line-search iterations, or None (keep the file's).
       floor_contacts_only: keep only body-vs-floor contact pairs (drops self-collisions).
+      solver: "newton", "cg" or None (keep the file's; PGS becomes Newton, MJX lacks PGS).
+      disable_eulerdamp: integrate joint damping explicitly instead of implicitly.
+      no_floor_contact_bodies: bodies whose geoms never touch the floor while the agent is
+        healthy; their floor contacts are dropped.
     """
 
     integrator: str | None = None
     iterations: int | None = None
     ls_iterations: int | None = None
     floor_contacts_only: bool = False
+    solver: str | None = None
+    disable_eulerdamp: bool = False
+    no_floor_contact_bodies: tuple[str, ...] = ()
 
 
 PHYSICS_PRESETS: dict[str, PhysicsOptions] = {
@@ -80,12 +87,24 @@ def load_model(env_name: str, options: PhysicsOptions) -> mujoco.MjModel:
             "euler": mujoco.mjtIntegrator.mjINT_EULER,
             "rk4": mujoco.mjtIntegrator.mjINT_RK4,
         }[options.integrator]
+    if options.solver is not None:
+        model.opt.solver = {
+            "newton": mujoco.mjtSolver.mjSOL_NEWTON,
+            "cg": mujoco.mjtSolver.mjSOL_CG,
+        }[options.solver]
+    if options.disable_eulerdamp:
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
     if options.iterations is not None:
         model.opt.iterations = options.iterations
     if options.ls_iterations is not None:
         model.opt.ls_iterations = options.ls_iterations
     if options.floor_contacts_only:
         _keep_floor_contacts(model)
+    for body in options.no_floor_contact_bodies:
+        body_id = model.body(body).id
+        for g in range(model.ngeom):
+            if model.geom_bodyid[g] == body_id:
+                model.geom_contype[g] = model.geom_conaffinity[g] = 0
     return model
 
 

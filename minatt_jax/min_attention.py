@@ -1,0 +1,244 @@
+"""The minimum-attention (MA) regularizer, for any JAX control law ``u(params, x)``.
+
+penalty = alpha * (feedback + temporal), with
+
+* feedback = mean over states of ||du/dx||_F^2, the Jacobian of the deterministic control with
+  respect to the observation the policy receives. Estimators: ``jacfwd`` and ``jacrev`` (exact),
+  ``hutchinson`` (k Rademacher probes v in action space, E ||v^T J||^2 = ||J||_F^2, one VJP per
+  probe: unbiased, cheaper, noisier). Optionally on a random subsample of the batch.
+* temporal = mean over states of ||(u(x; theta) - u(x; theta_prev)) / dt||^2, the appendix reading
+  (change of the control law over learning time at fixed states, theta_prev = the parameters before
+  the last update, held fixed), or, as an option, the rollout reading ||(u(x') - u(x)) / dt||^2 over
+  consecutive states (x, x') of the batch.
+
+**Update interval.** With ``interval = k > 1`` the feedback term is computed on every k-th update
+only, and on those updates it enters with weight ``alpha * k``: it still carries a gradient there,
+and averaged over k updates the regularization strength equals alpha per update (the same total
+pull as computing it every time, delivered in fewer, larger steps). ``interval_scaling=False``
+keeps weight alpha on those updates instead (then the effective strength is alpha / k).
+
+A CAPS regularizer (Mysore et al. 2021) sits beside it as a comparison baseline:
+lambda_T ||u(x) - u(x')|| + lambda_S ||u(x) - u(x + N(0, sigma^2))||.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+# u(params, obs) -> action for a single observation (deterministic control, e.g. tanh(mean)).
+ControlFn = Callable[[Any, jax.Array], jax.Array]
+
+MODES = ("full", "jacobian", "temporal", "none")
+ESTIMATORS = ("jacfwd", "jacrev", "hutchinson")
+TEMPORAL_READINGS = ("parameter", "rollout")
+PLACEMENTS = ("actor_loss", "reward")
+
+
+@dataclasses.dataclass(frozen=True)
+class MAConfig:
+    """Settings of the minimum-attention penalty.
+
+    Attributes:
+      alpha: weight of the penalty (0 switches it off).
+      mode: "full" (both terms), "jacobian" (feedback only), "temporal" or "none".
+      estimator: feedback-term estimator, one of ESTIMATORS.
+      probes: Hutchinson probes per state.
+      subsample: number of batch states the feedback term uses (0 = the whole batch).
+      interval: compute the feedback term every ``interval`` updates (see the module docstring).
+      interval_scaling: weight the feedback term by alpha * interval on the updates computing it.
+      temporal: "parameter" (appendix reading, default) or "rollout".
+      temporal_dt: dt of the temporal term: 1 update for the parameter reading; for the rollout
+        reading the trainer passes the environment's dt.
+      placement: "actor_loss" (default) or "reward" (subtract alpha * penalty(s) from rewards).
+    """
+
+    alpha: float = 0.0
+    mode: str = "full"
+    estimator: str = "hutchinson"
+    probes: int = 1
+    subsample: int = 64
+    interval: int = 1
+    interval_scaling: bool = True
+    temporal: str = "parameter"
+    temporal_dt: float = 1.0
+    placement: str = "actor_loss"
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.mode in MODES, f"ma mode must be one of {MODES}, got {self.mode!r}"),
+            (
+                self.estimator in ESTIMATORS,
+                f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}",
+            ),
+            (
+                self.temporal in TEMPORAL_READINGS,
+                f"temporal must be one of {TEMPORAL_READINGS}, got {self.temporal!r}",
+            ),
+            (
+                self.placement in PLACEMENTS,
+                f"placement must be one of {PLACEMENTS}, got {self.placement!r}",
+            ),
+            (self.alpha >= 0, f"alpha must be >= 0, got {self.alpha}"),
+            (self.probes >= 1, f"probes must be >= 1, got {self.probes}"),
+            (self.subsample >= 0, f"subsample must be >= 0, got {self.subsample}"),
+            (self.interval >= 1, f"interval must be >= 1, got {self.interval}"),
+            (self.temporal_dt > 0, f"temporal_dt must be > 0, got {self.temporal_dt}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    @property
+    def active(self) -> bool:
+        return self.alpha > 0 and self.mode != "none"
+
+    @property
+    def uses_feedback(self) -> bool:
+        return self.active and self.mode in ("full", "jacobian")
+
+    @property
+    def uses_temporal(self) -> bool:
+        return self.active and self.mode in ("full", "temporal")
+
+
+def feedback_exact(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
+    """Per-state ||du/dx||_F^2 for a batch ``obs`` (n, obs_dim), exactly (jacfwd or jacrev)."""
+    jac = jax.jacfwd if mode == "jacfwd" else jax.jacrev
+    jacobians = jax.vmap(jac(lambda x: u(params, x)))(obs)  # (n, act, obs)
+    return jnp.sum(jnp.square(jacobians), axis=(-2, -1))
+
+
+def feedback_hutchinson(
+    u: ControlFn, params: Any, obs: jax.Array, key: jax.Array, probes: int = 1
+) -> jax.Array:
+    """Per-state unbiased estimate of ||du/dx||_F^2 from ``probes`` Rademacher VJPs."""
+
+    def batch_u(x: jax.Array) -> jax.Array:
+        return jax.vmap(lambda xi: u(params, xi))(x)
+
+    actions, vjp = jax.vjp(batch_u, obs)
+
+    def one_probe(k: jax.Array) -> jax.Array:
+        v = jax.random.rademacher(k, actions.shape, dtype=actions.dtype)
+        (row,) = vjp(v)  # v_i^T J_i for every state i
+        return jnp.sum(jnp.square(row), axis=-1)
+
+    return jnp.mean(jax.vmap(one_probe)(jax.random.split(key, probes)), axis=0)
+
+
+def feedback_term(
+    config: MAConfig, u: ControlFn, params: Any, obs: jax.Array, key: jax.Array
+) -> jax.Array:
+    """Mean ||du/dx||_F^2 over (a subsample of) the batch, with the configured estimator."""
+    key_sub, key_probe = jax.random.split(key)
+    n = obs.shape[0]
+    if 0 < config.subsample < n:
+        idx = jax.random.choice(key_sub, n, (config.subsample,), replace=False)
+        obs = obs[idx]
+    if config.estimator == "hutchinson":
+        return jnp.mean(feedback_hutchinson(u, params, obs, key_probe, config.probes))
+    return jnp.mean(feedback_exact(u, params, obs, config.estimator))
+
+
+def temporal_parameter(
+    u: ControlFn, params: Any, prev_params: Any, obs: jax.Array, dt: float = 1.0
+) -> jax.Array:
+    """Mean ||(u(x; params) - u(x; prev_params)) / dt||^2; prev_params get no gradient."""
+    prev = jax.lax.stop_gradient(prev_params)
+    now = jax.vmap(lambda x: u(params, x))(obs)
+    before = jax.vmap(lambda x: u(prev, x))(obs)
+    return jnp.mean(jnp.sum(jnp.square((now - before) / dt), axis=-1))
+
+
+def temporal_rollout(
+    u: ControlFn, params: Any, obs: jax.Array, next_obs: jax.Array, dt: float
+) -> jax.Array:
+    """Mean ||(u(x') - u(x)) / dt||^2 over consecutive-state pairs (x, x')."""
+    a = jax.vmap(lambda x: u(params, x))(obs)
+    b = jax.vmap(lambda x: u(params, x))(next_obs)
+    return jnp.mean(jnp.sum(jnp.square((b - a) / dt), axis=-1))
+
+
+def penalty(
+    config: MAConfig,
+    u: ControlFn,
+    params: Any,
+    obs: jax.Array,
+    key: jax.Array,
+    *,
+    prev_params: Any = None,
+    next_obs: jax.Array | None = None,
+    update_step: jax.Array | int = 0,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """The weighted MA penalty and its parts ``{'feedback', 'temporal', 'penalty'}``.
+
+    ``prev_params`` is needed for the parameter reading of the temporal term, ``next_obs`` for the
+    rollout reading; ``update_step`` selects the updates that compute the feedback term when
+    ``config.interval > 1``.
+    """
+    zero = jnp.zeros((), jnp.float32)
+    feedback, temporal, total = zero, zero, zero
+    if config.uses_feedback:
+        if config.interval == 1:
+            feedback = feedback_term(config, u, params, obs, key)
+            weight = config.alpha
+        else:
+            due = jnp.asarray(update_step) % config.interval == 0
+            feedback = jax.lax.cond(
+                due, lambda: feedback_term(config, u, params, obs, key), lambda: zero
+            )
+            scale = config.interval if config.interval_scaling else 1
+            weight = jnp.where(due, config.alpha * scale, 0.0)
+        total = total + weight * feedback
+    if config.uses_temporal:
+        if config.temporal == "parameter":
+            if prev_params is None:
+                raise ValueError("the parameter reading of the temporal term needs prev_params")
+            temporal = temporal_parameter(u, params, prev_params, obs, config.temporal_dt)
+        else:
+            if next_obs is None:
+                raise ValueError("the rollout reading of the temporal term needs next_obs")
+            temporal = temporal_rollout(u, params, obs, next_obs, config.temporal_dt)
+        total = total + config.alpha * temporal
+    return total, {"feedback": feedback, "temporal": temporal, "penalty": total}
+
+
+@dataclasses.dataclass(frozen=True)
+class CAPSConfig:
+    """CAPS smoothness regularizer: lambda_T temporal, lambda_S spatial with noise sigma."""
+
+    lambda_t: float = 0.0
+    lambda_s: float = 0.0
+    sigma: float = 0.2
+
+    @property
+    def active(self) -> bool:
+        return self.lambda_t > 0 or self.lambda_s > 0
+
+
+def caps_penalty(
+    config: CAPSConfig,
+    u: ControlFn,
+    params: Any,
+    obs: jax.Array,
+    next_obs: jax.Array,
+    key: jax.Array,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """CAPS: lambda_T mean ||u(x) - u(x')|| + lambda_S mean ||u(x) - u(x + N(0, sigma^2))||."""
+    batch_u = jax.vmap(lambda x: u(params, x))
+    a = batch_u(obs)
+    temporal = jnp.mean(_safe_norm(a - batch_u(next_obs)))
+    noisy = obs + config.sigma * jax.random.normal(key, obs.shape)
+    spatial = jnp.mean(_safe_norm(a - batch_u(noisy)))
+    total = config.lambda_t * temporal + config.lambda_s * spatial
+    return total, {"caps_temporal": temporal, "caps_spatial": spatial, "caps_penalty": total}
+
+
+def _safe_norm(x: jax.Array) -> jax.Array:
+    """Euclidean norm over the last axis with a finite gradient at zero."""
+    return jnp.sqrt(jnp.sum(jnp.square(x), axis=-1) + 1e-12)
