@@ -1,4 +1,4 @@
-"""The ``minatt-jax`` command line: ``envs`` and ``rollout`` (training comes with the SAC issue).
+"""The ``minatt-jax`` command line: ``envs``, ``rollout``, ``train`` and ``evaluate``.
 
 Every user error (unknown name, invalid number, unwritable output) prints one line starting with
 ``minatt-jax: error:`` and exits with status 2, without a traceback.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -71,7 +72,51 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p_roll.add_argument("--out", default=None, help="write the summary as JSON to this file")
     p_roll.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    from minatt_jax.config import PRESETS
+    from minatt_jax.min_attention import ESTIMATORS, MODES, PLACEMENTS, TEMPORAL_READINGS
+
+    p_train = sub.add_parser("train", help="train an agent (writes a run directory)")
+    p_train.add_argument("--env", default=None, help=f"one of {', '.join(ENV_NAMES)}")
+    p_train.add_argument("--algo", default=None, help="sac (mbpo and mbmpo: coming)")
+    p_train.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
+    p_train.add_argument("--alpha", type=_non_negative_float, default=None, help="MA weight")
+    p_train.add_argument("--ma-mode", choices=MODES, default=None)
+    p_train.add_argument("--estimator", choices=ESTIMATORS, default=None)
+    p_train.add_argument("--probes", type=_positive_int, default=None)
+    p_train.add_argument("--subsample", type=_non_negative_int, default=None, help="0 = batch")
+    p_train.add_argument("--interval", type=_positive_int, default=None)
+    p_train.add_argument("--temporal", choices=TEMPORAL_READINGS, default=None)
+    p_train.add_argument("--placement", choices=PLACEMENTS, default=None)
+    p_train.add_argument("--caps-lambda-t", type=_non_negative_float, default=None)
+    p_train.add_argument("--caps-lambda-s", type=_non_negative_float, default=None)
+    p_train.add_argument("--noise", choices=("gaussian", "ou"), default=None)
+    p_train.add_argument("--variant", default=None, help="task set to train on (nominal)")
+    p_train.add_argument("--steps", type=_positive_int, default=None, help="total env steps")
+    p_train.add_argument("--eval-every", type=_positive_int, default=None)
+    p_train.add_argument("--num-envs", type=_positive_int, default=None)
+    p_train.add_argument("--seed", type=_non_negative_int, default=None)
+    p_train.add_argument("--normalize-obs", action="store_true", default=None)
+    p_train.add_argument("--out", default=None, help="run directory (default runs/<name>)")
+    p_train.add_argument("--resume", action="store_true", help="continue the run in --out")
+
+    p_eval = sub.add_parser("evaluate", help="evaluate a run's latest checkpoint")
+    p_eval.add_argument("run_dir")
+    p_eval.add_argument("--variant", default=None, help="task set (default: the run's)")
+    p_eval.add_argument("--episodes", type=_positive_int, default=None)
+    p_eval.add_argument("--seed", type=_non_negative_int, default=0)
+    p_eval.add_argument("--json", action="store_true")
     return parser
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
 
 
 def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
@@ -165,6 +210,108 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
     return summary
 
 
+_TRAIN_FLAGS = {
+    # CLI flag (argparse dest) -> TrainConfig override key
+    "env": "env", "algo": "algo", "alpha": "ma_alpha", "ma_mode": "ma_mode",
+    "estimator": "ma_estimator", "probes": "ma_probes", "subsample": "ma_subsample",
+    "interval": "ma_interval", "temporal": "ma_temporal", "placement": "ma_placement",
+    "caps_lambda_t": "caps_lambda_t", "caps_lambda_s": "caps_lambda_s", "noise": "noise",
+    "variant": "task_set", "steps": "total_steps", "eval_every": "eval_every",
+    "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac_normalize_obs",
+}  # fmt: skip
+
+
+def _train_config(args: argparse.Namespace):
+    """The run's configuration: the preset (or the stored one, on resume) plus given flags."""
+    import minatt_jax.envs as envs
+    from minatt_jax import runner
+    from minatt_jax.config import PRESETS, with_overrides
+
+    overrides = {
+        key: getattr(args, dest)
+        for dest, key in _TRAIN_FLAGS.items()
+        if getattr(args, dest) is not None
+    }
+    if args.resume:
+        if args.out is None:
+            raise UserError("--resume needs --out RUN_DIR")
+        try:
+            base = runner.load_config(args.out)
+        except runner.RunError as e:
+            raise UserError(str(e)) from None
+    else:
+        base = PRESETS[args.preset]
+    try:
+        config = with_overrides(base, **overrides)
+        if config.algo not in ("sac",):
+            raise UserError(f"unknown or not yet available algorithm {config.algo!r}; use sac")
+        if config.env not in envs.ENV_NAMES:
+            envs.make(config.env)  # raises UnknownNameError with the list of names
+        envs.check_task_set_name(config.task_set)
+    except (ValueError, envs.UnknownNameError) as e:
+        raise UserError(str(e)) from None
+    if args.resume:
+        changed = [
+            k for k, v in config.to_dict().items() if v != base.to_dict()[k] and k != "total_steps"
+        ]
+        if changed:
+            raise UserError(
+                f"{args.out} was made with other settings ({', '.join(changed)} differ); "
+                "resume takes them from its config.json (only --steps may change)"
+            )
+        if config.total_steps != base.total_steps:
+            runner.write_json_atomic(os.path.join(args.out, "config.json"), config.to_dict())
+    return config
+
+
+def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import runner
+
+    config = _train_config(args)
+    out = args.out or os.path.join(
+        "runs", f"{config.env}_{config.algo}_alpha{config.ma.alpha:g}_seed{config.seed}"
+    )
+    if not args.resume and os.path.exists(os.path.join(out, "config.json")):
+        raise UserError(f"{out} already holds a run; pass --resume or choose another --out")
+    os.makedirs(out, exist_ok=True)
+    print(
+        f"training {config.algo} on {config.env} ({config.task_set}) for {config.total_steps} "
+        f"env steps, preset {config.preset}, MA alpha {config.ma.alpha:g} ({config.ma.mode})"
+        f" -> {out}",
+        flush=True,
+    )
+    try:
+        record = runner.train(config, out, resume=args.resume, log=lambda m: print(m, flush=True))
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    if record:
+        print("\nfinal evaluation (deterministic policy, mean +- std over episodes)")
+        for key in ("return", "feedback_norm", "feedforward_norm", "energy", "jerk", "smoothness"):
+            print(f"  {key:18s} {record[key]:12.4f} +- {record[key + '_std']:.4f}")
+        print(f"  {'env_steps_per_s':18s} {record['env_steps_per_s']:12.1f}")
+        print(f"  {'updates_per_s':18s} {record['updates_per_s']:12.1f}")
+    print(f"\nfiles in {out}: config.json, metrics.jsonl, tensorboard/, checkpoints/")
+    return record
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import runner
+
+    try:
+        metrics = runner.evaluate_run(args.run_dir, args.variant, args.episodes, args.seed)
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    if args.json:
+        print(json.dumps(metrics))
+    else:
+        print(f"{args.run_dir} at step {metrics['step']} on {metrics['variant']} "
+              f"({metrics['episodes']} episodes)")  # fmt: skip
+        for key in ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk",
+                    "smoothness"):  # fmt: skip
+            print(f"  {key:18s} {metrics[key]:12.4f} +- {metrics[key + '_std']:.4f}")
+    return metrics
+
+
 def _write_json_atomic(path: str, obj: Any) -> None:
     """Writes JSON through a temporary file and a rename, so a crash never leaves half a file."""
     import os
@@ -184,7 +331,12 @@ def _write_json_atomic(path: str, obj: Any) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``minatt-jax`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    commands = {"envs": _cmd_envs, "rollout": _cmd_rollout}
+    commands = {
+        "envs": _cmd_envs,
+        "rollout": _cmd_rollout,
+        "train": _cmd_train,
+        "evaluate": _cmd_evaluate,
+    }
     try:
         commands[args.command](args)
     except UserError as e:

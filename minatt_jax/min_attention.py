@@ -242,3 +242,33 @@ def caps_penalty(
 def _safe_norm(x: jax.Array) -> jax.Array:
     """Euclidean norm over the last axis with a finite gradient at zero."""
     return jnp.sqrt(jnp.sum(jnp.square(x), axis=-1) + 1e-12)
+
+
+def per_state_penalty(
+    config: MAConfig,
+    u: ControlFn,
+    params: Any,
+    obs: jax.Array,
+    key: jax.Array,
+    *,
+    prev_params: Any = None,
+    next_obs: jax.Array | None = None,
+) -> jax.Array:
+    """alpha * (feedback + temporal) for every state of the batch (no subsample, no interval).
+
+    Used by the reward-shaping placement, which subtracts it from each transition's reward.
+    """
+    total = jnp.zeros(obs.shape[:1], jnp.float32)
+    if config.uses_feedback:
+        if config.estimator == "hutchinson":
+            total = total + feedback_hutchinson(u, params, obs, key, config.probes)
+        else:
+            total = total + feedback_exact(u, params, obs, config.estimator)
+    if config.uses_temporal:
+        now = jax.vmap(lambda x: u(params, x))(obs)
+        if config.temporal == "parameter":
+            other = jax.vmap(lambda x: u(prev_params, x))(obs)
+        else:
+            other = jax.vmap(lambda x: u(params, x))(next_obs)
+        total = total + jnp.sum(jnp.square((now - other) / config.temporal_dt), axis=-1)
+    return config.alpha * total

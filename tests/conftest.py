@@ -1,10 +1,23 @@
-"""Shared fixtures: environments are built once per session (building compiles nothing)."""
+"""Shared fixtures and a persistent XLA compilation cache for the whole session.
+
+Several tests compile the same programs (in-process and in subprocesses); the cache, in a fresh
+temporary folder per session, lets the later ones load them instead of compiling again.
+"""
 
 from __future__ import annotations
 
+import os
+import tempfile
+
+import jax
 import pytest
 
 import minatt_jax.envs as envs
+
+_CACHE = tempfile.mkdtemp(prefix="minatt-jax-xla-cache-")
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE  # inherited by subprocesses
+jax.config.update("jax_compilation_cache_dir", _CACHE)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,127 @@
+"""Deterministic evaluation episodes and the paper's control metrics.
+
+Per episode (deterministic actions u_t = tanh(mean(x_t)), steps until the first ``done``):
+
+* ``return``: sum of rewards;
+* ``feedback_norm``: mean over steps of ||du/dx||_F^2 at x_t, exact (``jax.jacfwd``), with respect
+  to the observation the policy receives (normalized, when normalization is on);
+* ``feedforward_norm``: mean over steps t >= 1 of ||(u_t - u_{t-1}) / dt||^2 (the rollout reading;
+  the paper's "action jerk" metric);
+* ``energy``: mean over steps of ||u_t||^2 (the paper's "control cost sum(u^2) per step");
+* ``jerk``: mean over steps t >= 2 of ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2;
+* ``smoothness``: the CAPS score Sm = 2 / (n f_s) * sum_i M_i f_i over the n one-sided FFT bins
+  of each action dimension's sequence (M_i = 2 |X_i| / N, f_s = 1 / dt), averaged over action
+  dimensions. Lower is smoother. This is the convention of Mysore et al. (2021); the other one
+  seen in code (M_i = |X_i| without the 2 / N) is larger by N / 4 for N-step episodes.
+
+Metrics are mean and std over episodes; seeds are aggregated by the caller.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+import minatt_jax.envs as envs
+from minatt_jax import normalizer as obs_norm
+
+METRIC_NAMES = ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk")
+
+
+@struct.dataclass
+class EvalResult:
+    """Per-episode metrics (episodes,) and the action sequences (episodes, steps, act_dim)."""
+
+    metrics: dict[str, jax.Array]
+    actions: jax.Array
+    alive: jax.Array  # (episodes, steps) 1.0 until the episode's first done (inclusive)
+
+
+def make_evaluator(
+    env: envs.LocomotionEnv,
+    control: Callable[[Any, jax.Array], jax.Array],
+    max_steps: int,
+    normalize_obs: bool,
+    episodes: int,
+) -> Callable[[Any, obs_norm.Normalizer, jax.Array, envs.Task], EvalResult]:
+    """A jitted ``(actor_params, normalizer, key, task_set) -> EvalResult``.
+
+    Episode i runs task ``i % num_tasks`` of the task set.
+    """
+    dt = env.dt
+
+    def episode(params: Any, norm: obs_norm.Normalizer, key: jax.Array, task: envs.Task):
+        state = env.reset(key, task)
+
+        def body(carry, _):
+            state, alive = carry
+            x = obs_norm.normalize(norm, state.obs, normalize_obs)
+            u = control(params, x)
+            jac = jax.jacfwd(lambda y: control(params, y))(x)
+            next_state = env.step(state, u)
+            out = {
+                "u": u,
+                "feedback": jnp.sum(jnp.square(jac)),
+                "reward": next_state.reward,
+                "alive": alive,
+            }
+            return (next_state, alive * (1.0 - next_state.done)), out
+
+        _, out = jax.lax.scan(body, (state, jnp.ones(())), None, length=max_steps)
+        alive, u = out["alive"], out["u"]
+        length = jnp.sum(alive)
+        du = jnp.sum(jnp.square((u[1:] - u[:-1]) / dt), -1)
+        ddu = jnp.sum(jnp.square((u[2:] - 2 * u[1:-1] + u[:-2]) / dt**2), -1)
+        metrics = {
+            "return": jnp.sum(alive * out["reward"]),
+            "length": length,
+            "feedback_norm": jnp.sum(alive * out["feedback"]) / length,
+            "feedforward_norm": jnp.sum(alive[1:] * du) / jnp.maximum(length - 1, 1),
+            "energy": jnp.sum(alive * jnp.sum(jnp.square(u), -1)) / length,
+            "jerk": jnp.sum(alive[2:] * ddu) / jnp.maximum(length - 2, 1),
+        }
+        return metrics, u, alive
+
+    def evaluate(params, norm, key, task_set):
+        k = envs.num_tasks(task_set)
+        tasks = jax.tree.map(lambda x: x[jnp.arange(episodes) % k], task_set)
+        keys = jax.random.split(key, episodes)
+        metrics, actions, alive = jax.vmap(episode, in_axes=(None, None, 0, 0))(
+            params, norm, keys, tasks
+        )
+        return EvalResult(metrics, actions, alive)
+
+    return jax.jit(evaluate)
+
+
+def smoothness(actions: np.ndarray, alive: np.ndarray, dt: float) -> np.ndarray:
+    """CAPS smoothness Sm per episode (see the module docstring), on the alive prefix."""
+    scores = []
+    for a, m in zip(np.asarray(actions), np.asarray(alive), strict=True):
+        n_steps = int(m.sum())
+        if n_steps < 2:
+            scores.append(0.0)
+            continue
+        seq = a[:n_steps]
+        spectrum = 2.0 * np.abs(np.fft.rfft(seq, axis=0)) / n_steps
+        freqs = np.fft.rfftfreq(n_steps, d=dt)
+        fs = 1.0 / dt
+        sm = 2.0 / (len(freqs) * fs) * np.sum(spectrum * freqs[:, None], axis=0)
+        scores.append(float(np.mean(sm)))
+    return np.asarray(scores)
+
+
+def summarize(result: EvalResult, dt: float) -> dict[str, float]:
+    """Mean and std over episodes of every metric, plus the smoothness score."""
+    metrics = {k: np.asarray(v) for k, v in result.metrics.items()}
+    metrics["smoothness"] = smoothness(result.actions, result.alive, dt)
+    out: dict[str, float] = {}
+    for name, values in metrics.items():
+        out[name] = float(np.mean(values))
+        out[f"{name}_std"] = float(np.std(values))
+    return out

@@ -1,0 +1,64 @@
+"""Actor and twin-critic networks (flax.linen MLPs) of SAC."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+
+class MLP(nn.Module):
+    """ReLU MLP with a linear output layer."""
+
+    hidden: Sequence[int]
+    out: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(self.out)(x)
+
+
+class Actor(nn.Module):
+    """Tanh-squashed Gaussian policy head: returns the pre-tanh mean and the clamped log-std."""
+
+    hidden: Sequence[int]
+    act_dim: int
+    log_std_min: float = -20.0
+    log_std_max: float = 2.0
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        out = MLP(self.hidden, 2 * self.act_dim)(obs)
+        mean, log_std = jnp.split(out, 2, axis=-1)
+        return mean, jnp.clip(log_std, self.log_std_min, self.log_std_max)
+
+
+class TwinCritic(nn.Module):
+    """Two independent Q networks Q(s, a); returns shape (2, ...)."""
+
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        q1 = MLP(self.hidden, 1)(x)[..., 0]
+        q2 = MLP(self.hidden, 1)(x)[..., 0]
+        return jnp.stack([q1, q2])
+
+
+def sample_tanh_gaussian(
+    key: jax.Array, mean: jax.Array, log_std: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """A reparameterized tanh-Gaussian sample and its log-probability (summed over actions)."""
+    std = jnp.exp(log_std)
+    eps = jax.random.normal(key, mean.shape)
+    pre = mean + std * eps
+    action = jnp.tanh(pre)
+    log_prob = -0.5 * (eps**2 + 2 * log_std + jnp.log(2 * jnp.pi))
+    # log(1 - tanh(x)^2) written stably: 2 * (log 2 - x - softplus(-2x)).
+    log_prob = log_prob - 2.0 * (jnp.log(2.0) - pre - jax.nn.softplus(-2.0 * pre))
+    return action, jnp.sum(log_prob, axis=-1)

@@ -1,0 +1,200 @@
+"""A training run on disk: config.json, metrics.jsonl, TensorBoard events, orbax checkpoints.
+
+The loop alternates one compiled ``train_chunk`` (``eval_every`` env steps), an evaluation, one
+metrics line and one checkpoint. Everything the next chunk depends on is in the checkpointed train
+state and the evaluation keys derive from (seed, step), so a run resumed from its last checkpoint
+writes the same metrics as one never interrupted (timings aside).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+
+from minatt_jax import checkpoint
+from minatt_jax.config import TrainConfig
+from minatt_jax.evaluation import summarize
+from minatt_jax.trainer import make_trainer
+
+TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "wall_s", "chunk_s", "eval_s", "compile_s")
+
+
+class RunError(Exception):
+    """A problem with the run directory (a user-facing error)."""
+
+
+def write_json_atomic(path: str, obj: Any) -> None:
+    """Writes JSON through a temporary file and a rename: never half a file."""
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(obj, f, indent=2)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_metrics(run_dir: str) -> list[dict[str, Any]]:
+    """The records of ``metrics.jsonl`` (an unfinished last line is ignored)."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    if not os.path.exists(path):
+        return []
+    records = []
+    with open(path) as f:
+        for line in f:
+            if line.endswith("\n"):
+                records.append(json.loads(line))
+    return records
+
+
+def _keep_metrics_until(run_dir: str, step: int) -> None:
+    """Rewrites metrics.jsonl (atomically) without records after ``step``."""
+    kept = [r for r in read_metrics(run_dir) if r["step"] <= step]
+    path = os.path.join(run_dir, "metrics.jsonl")
+    fd, tmp = tempfile.mkstemp(dir=run_dir, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        for r in kept:
+            f.write(json.dumps(r) + "\n")
+    os.replace(tmp, path)
+
+
+def load_config(run_dir: str) -> TrainConfig:
+    """The configuration a run directory was made with."""
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.isdir(run_dir):
+        raise RunError(f"run directory {run_dir} does not exist")
+    if not os.path.exists(path):
+        raise RunError(f"{run_dir} has no config.json: not a minatt-jax run directory")
+    try:
+        with open(path) as f:
+            return TrainConfig.from_dict(json.load(f))
+    except (json.JSONDecodeError, TypeError, KeyError, ValueError) as e:
+        raise RunError(f"{path} is corrupt or from an incompatible version ({e})") from None
+
+
+def _tensorboard(run_dir: str):
+    try:
+        from tensorboardX import SummaryWriter
+    except ImportError:  # optional: metrics.jsonl holds the same numbers
+        return None
+    return SummaryWriter(os.path.join(run_dir, "tensorboard"))
+
+
+def train(
+    config: TrainConfig,
+    run_dir: str,
+    resume: bool = False,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Trains (or resumes) the run in ``run_dir``; returns the last metrics record."""
+    trainer = make_trainer(config)
+    config_path = os.path.join(run_dir, "config.json")
+    if resume:
+        stored = load_config(run_dir)
+        if stored.to_dict() != config.to_dict():
+            raise RunError(f"{run_dir} was made with a different configuration; see {config_path}")
+        state = trainer.init(jax.random.PRNGKey(config.seed))
+        step = 0
+        if checkpoint.latest_step(run_dir) is not None:
+            try:
+                step, state = checkpoint.restore(run_dir, state)
+            except checkpoint.CheckpointError as e:
+                raise RunError(str(e)) from None
+            state = jax.device_put(state, jax.devices()[0])
+        # Records after the checkpoint are written again, identically, by the rerun.
+        _keep_metrics_until(run_dir, step)
+        log(f"resumed {run_dir} at env step {step}")
+    else:
+        if os.path.exists(config_path):
+            raise RunError(f"{run_dir} already holds a run; pass --resume or choose another --out")
+        write_json_atomic(config_path, config.to_dict())
+        state = trainer.init(jax.random.PRNGKey(config.seed))
+
+    t0 = time.perf_counter()
+    chunk = trainer.train_chunk.lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    log(f"compiled the training step in {compile_s:.1f} s")
+    writer = _tensorboard(run_dir)
+    eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
+    record: dict[str, Any] = {}
+    start = time.perf_counter()
+    steps_done_here = 0
+    while int(state.env_steps) < config.total_steps:
+        t0 = time.perf_counter()
+        state, train_metrics = chunk(state)
+        state = jax.block_until_ready(state)
+        chunk_s = time.perf_counter() - t0
+        step = int(state.env_steps)
+        steps_done_here += trainer.steps_per_chunk
+        t0 = time.perf_counter()
+        result = trainer.evaluate(state, jax.random.fold_in(eval_key, step), trainer.task_set)
+        evaluation = summarize(jax.device_get(result), trainer.env.dt)
+        eval_s = time.perf_counter() - t0
+        elapsed = time.perf_counter() - start
+        remaining = (config.total_steps - step) / max(steps_done_here / elapsed, 1e-9)
+        record = {
+            "step": step,
+            **evaluation,
+            **{k: float(v) for k, v in jax.device_get(train_metrics).items()},
+            "env_steps_per_s": trainer.steps_per_chunk / chunk_s,
+            "updates_per_s": float(train_metrics["updates"]) / chunk_s,
+            "chunk_s": chunk_s,
+            "eval_s": eval_s,
+            "compile_s": compile_s,
+            "wall_s": elapsed,
+        }
+        with open(os.path.join(run_dir, "metrics.jsonl"), "a") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        if writer is not None:
+            for k, v in record.items():
+                if k != "step" and np.isfinite(v):
+                    writer.add_scalar(k, v, step)
+            writer.flush()
+        checkpoint.save(run_dir, step, state)
+        log(
+            f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
+            f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "
+            f"env steps/s | ETA {remaining / 60:6.1f} min"
+        )
+    if writer is not None:
+        writer.close()
+    return record
+
+
+def evaluate_run(
+    run_dir: str, task_set_name: str | None, episodes: int | None, seed: int = 0
+) -> dict[str, Any]:
+    """Evaluates the latest checkpoint of ``run_dir`` on a task set; returns the metrics."""
+    import dataclasses
+
+    import minatt_jax.envs as envs
+
+    config = load_config(run_dir)
+    if episodes is not None:
+        config = dataclasses.replace(config, eval_episodes=episodes)
+    trainer = make_trainer(config)
+    name = task_set_name or config.task_set
+    try:
+        envs.check_task_set_name(name)
+    except envs.UnknownNameError as e:
+        raise RunError(str(e)) from None
+    tasks = envs.task_set(trainer.env, name)
+    like = trainer.init(jax.random.PRNGKey(config.seed))
+    try:
+        step, state = checkpoint.restore(run_dir, like)
+    except checkpoint.CheckpointError as e:
+        raise RunError(str(e)) from None
+    result = trainer.evaluate(state, jax.random.PRNGKey(seed), tasks)
+    metrics = summarize(jax.device_get(result), trainer.env.dt)
+    return {"run_dir": run_dir, "step": step, "variant": name, "episodes": config.eval_episodes,
+            **metrics}  # fmt: skip

@@ -1,0 +1,180 @@
+"""Soft actor-critic with the minimum-attention regularizer: pure init/update functions.
+
+The actor loss is SAC's, E[ent * log pi(a|s) - min_i Q_i(s, a)], plus the MA penalty on the
+deterministic control u(s) = tanh(mean(s)) (``placement="actor_loss"``, the default), or the MA
+penalty per state is subtracted from the rewards in the critic target (``placement="reward"``).
+A CAPS penalty can be added instead of (or beside) MA as a comparison baseline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from minatt_jax import min_attention as ma
+from minatt_jax.config import SACConfig
+from minatt_jax.networks import Actor, TwinCritic, sample_tanh_gaussian
+from minatt_jax.replay import Transitions
+
+
+@struct.dataclass
+class SACState:
+    """All SAC parameters and optimizer states (part of the train-state pytree)."""
+
+    actor_params: Any
+    critic_params: Any
+    target_critic_params: Any
+    log_entropy_coef: jax.Array
+    actor_opt: Any
+    critic_opt: Any
+    entropy_opt: Any
+    prev_actor_params: Any  # parameters before the last actor update (MA temporal term)
+    updates: jax.Array
+
+
+class SAC(NamedTuple):
+    """The functions of a SAC agent for fixed dimensions and settings."""
+
+    init: Callable[[jax.Array], SACState]
+    update: Callable[[SACState, Transitions, jax.Array], tuple[SACState, dict]]
+    control: Callable[[Any, jax.Array], jax.Array]  # deterministic u(params, obs)
+    sample: Callable[[Any, jax.Array, jax.Array], jax.Array]  # (params, obs, key) -> action
+
+
+def make_sac(
+    obs_dim: int,
+    act_dim: int,
+    config: SACConfig,
+    ma_config: ma.MAConfig,
+    caps_config: ma.CAPSConfig | None = None,
+) -> SAC:
+    """Builds a SAC agent; ``update`` takes a batch of (already normalized) transitions."""
+    caps_config = caps_config or ma.CAPSConfig()
+    actor = Actor(config.hidden, act_dim, config.log_std_min, config.log_std_max)
+    critic = TwinCritic(config.hidden)
+    actor_tx = optax.adam(config.actor_lr)
+    critic_tx = optax.adam(config.critic_lr)
+    entropy_tx = optax.adam(config.entropy_lr)
+    target_entropy = -float(act_dim) if config.target_entropy is None else config.target_entropy
+
+    def control(params: Any, obs: jax.Array) -> jax.Array:
+        mean, _ = actor.apply(params, obs)
+        return jnp.tanh(mean)
+
+    def sample(params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
+        mean, log_std = actor.apply(params, obs)
+        return sample_tanh_gaussian(key, mean, log_std)[0]
+
+    def init(key: jax.Array) -> SACState:
+        k_actor, k_critic = jax.random.split(key)
+        obs = jnp.zeros((1, obs_dim))
+        actor_params = actor.init(k_actor, obs)
+        critic_params = critic.init(k_critic, obs, jnp.zeros((1, act_dim)))
+        log_ent = jnp.log(jnp.asarray(config.init_entropy_coef, jnp.float32))
+        return SACState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            # Copies: a train state must not hold one buffer twice (it is donated to the step).
+            target_critic_params=jax.tree.map(jnp.copy, critic_params),
+            log_entropy_coef=log_ent,
+            actor_opt=actor_tx.init(actor_params),
+            critic_opt=critic_tx.init(critic_params),
+            entropy_opt=entropy_tx.init(log_ent),
+            prev_actor_params=jax.tree.map(jnp.copy, actor_params),
+            updates=jnp.zeros((), jnp.int32),
+        )
+
+    def critic_loss(critic_params, state: SACState, batch: Transitions, key: jax.Array):
+        k_next, k_shape = jax.random.split(key)
+        mean, log_std = actor.apply(state.actor_params, batch.next_obs)
+        next_action, next_logp = sample_tanh_gaussian(k_next, mean, log_std)
+        q_next = critic.apply(state.target_critic_params, batch.next_obs, next_action)
+        ent = jnp.exp(state.log_entropy_coef)
+        v_next = jnp.min(q_next, axis=0) - ent * next_logp
+        reward = batch.reward
+        if ma_config.active and ma_config.placement == "reward":
+            shaping = ma.per_state_penalty(
+                ma_config, control, state.actor_params, batch.obs, k_shape,
+                prev_params=state.prev_actor_params, next_obs=batch.next_obs,
+            )  # fmt: skip
+            reward = reward - jax.lax.stop_gradient(shaping)
+        target = reward + config.gamma * (1.0 - batch.terminal) * v_next
+        q = critic.apply(critic_params, batch.obs, batch.action)
+        loss = 0.5 * jnp.mean(jnp.sum(jnp.square(q - jax.lax.stop_gradient(target)), axis=0))
+        return loss, {"critic_loss": loss, "q_mean": jnp.mean(q)}
+
+    def actor_loss(actor_params, state: SACState, batch: Transitions, key: jax.Array):
+        k_sample, k_ma, k_caps = jax.random.split(key, 3)
+        mean, log_std = actor.apply(actor_params, batch.obs)
+        action, logp = sample_tanh_gaussian(k_sample, mean, log_std)
+        q = jnp.min(critic.apply(state.critic_params, batch.obs, action), axis=0)
+        ent = jnp.exp(state.log_entropy_coef)
+        sac_loss = jnp.mean(ent * logp - q)
+        loss = sac_loss
+        metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp)}
+        if ma_config.active and ma_config.placement == "actor_loss":
+            pen, parts = ma.penalty(
+                ma_config, control, actor_params, batch.obs, k_ma,
+                prev_params=state.prev_actor_params, next_obs=batch.next_obs,
+                update_step=state.updates,
+            )  # fmt: skip
+            loss = loss + pen
+            metrics.update({f"ma_{k}": v for k, v in parts.items()})
+        if caps_config.active:
+            pen, parts = ma.caps_penalty(
+                caps_config, control, actor_params, batch.obs, batch.next_obs, k_caps
+            )
+            loss = loss + pen
+            metrics.update(parts)
+        return loss, (metrics, jnp.mean(logp))
+
+    def update(state: SACState, batch: Transitions, key: jax.Array) -> tuple[SACState, dict]:
+        k_critic, k_actor = jax.random.split(key)
+        (_, c_metrics), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
+            state.critic_params, state, batch, k_critic
+        )
+        c_updates, critic_opt = critic_tx.update(c_grads, state.critic_opt, state.critic_params)
+        critic_params = optax.apply_updates(state.critic_params, c_updates)
+        state = state.replace(critic_params=critic_params, critic_opt=critic_opt)
+
+        (_, (a_metrics, mean_logp)), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
+            state.actor_params, state, batch, k_actor
+        )
+        a_updates, actor_opt = actor_tx.update(a_grads, state.actor_opt, state.actor_params)
+        actor_params = optax.apply_updates(state.actor_params, a_updates)
+
+        def entropy_loss(log_ent):
+            return -log_ent * jax.lax.stop_gradient(mean_logp + target_entropy)
+
+        e_grad = jax.grad(entropy_loss)(state.log_entropy_coef)
+        e_updates, entropy_opt = entropy_tx.update(e_grad, state.entropy_opt)
+        log_ent = optax.apply_updates(state.log_entropy_coef, e_updates)
+        target = optax.incremental_update(critic_params, state.target_critic_params, config.tau)
+        new_state = state.replace(
+            actor_params=actor_params,
+            actor_opt=actor_opt,
+            prev_actor_params=state.actor_params,
+            log_entropy_coef=log_ent,
+            entropy_opt=entropy_opt,
+            target_critic_params=target,
+            updates=state.updates + 1,
+        )
+        metrics = {**c_metrics, **a_metrics, "entropy_coef": jnp.exp(log_ent)}
+        return new_state, metrics
+
+    return SAC(init=init, update=update, control=control, sample=sample)
+
+
+def metric_names(ma_config: ma.MAConfig, caps_config: ma.CAPSConfig) -> tuple[str, ...]:
+    """Names of the per-update metrics ``update`` returns for these settings."""
+    names = ["critic_loss", "q_mean", "actor_loss", "entropy", "entropy_coef"]
+    if ma_config.active and ma_config.placement == "actor_loss":
+        names += ["ma_feedback", "ma_temporal", "ma_penalty"]
+    if caps_config.active:
+        names += ["caps_temporal", "caps_spatial", "caps_penalty"]
+    return tuple(names)

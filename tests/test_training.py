@@ -1,0 +1,149 @@
+"""SAC + MA training: it learns, MA lowers the feedback norm, one compile, exact resume."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from minatt_jax import checkpoint, runner
+from minatt_jax.cli import main
+from minatt_jax.config import PRESETS, SACConfig, with_overrides
+from minatt_jax.evaluation import summarize
+from minatt_jax.rollout import make_rollout, random_policy
+from minatt_jax.trainer import make_trainer
+
+LEARN = dataclasses.replace(
+    with_overrides(
+        PRESETS["smoke"], total_steps=6000, warmup_steps=1000, eval_every=2000,
+        max_episode_steps=200, buffer_size=10_000, eval_episodes=3,
+    ),
+    sac=SACConfig(hidden=(64, 64), batch_size=128),
+)  # fmt: skip
+
+
+def _train(config):
+    trainer = make_trainer(config)
+    state = trainer.init(jax.random.PRNGKey(config.seed))
+    while int(state.env_steps) < config.total_steps:
+        state, _ = trainer.train_chunk(state)
+    result = trainer.evaluate(state, jax.random.PRNGKey(1), trainer.task_set)
+    return trainer, state, summarize(jax.device_get(result), trainer.env.dt)
+
+
+@pytest.mark.slow
+def test_sac_learns_and_ma_lowers_feedback():
+    trainer, state, plain = _train(LEARN)
+    # One compiled program served every chunk, before and after warm-up.
+    assert trainer.train_chunk._cache_size() == 1
+    # Another seed runs in the same compiled program.
+    trainer.train_chunk(trainer.init(jax.random.PRNGKey(5)))
+    assert trainer.train_chunk._cache_size() == 1
+    # A random policy on the same 200-step episodes.
+    rollout = jax.jit(jax.vmap(make_rollout(trainer.env, random_policy(3), 200), (0, None)))
+    nominal = trainer.env.nominal_task()
+    random_returns = rollout(jax.random.split(jax.random.PRNGKey(0), 50), nominal)
+    best_random = float(np.max(random_returns.episode_return))
+    assert best_random < 80
+    assert plain["return"] > 100 > best_random
+    _, _, regularized = _train(with_overrides(LEARN, ma_alpha=1.0))
+    assert regularized["feedback_norm"] < 0.5 * plain["feedback_norm"]
+
+
+SMALL = with_overrides(PRESETS["smoke"], total_steps=900)
+
+
+def _comparable(records):
+    return [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS} for r in records]
+
+
+@pytest.mark.slow
+def test_killed_run_resumes_exactly(tmp_path):
+    env = dict(os.environ)  # conftest points JAX_COMPILATION_CACHE_DIR at a shared cache
+    cmd = [sys.executable, "-m", "minatt_jax.cli", "train", "--preset", "smoke", "--steps", "900"]
+    straight, killed = str(tmp_path / "straight"), str(tmp_path / "killed")
+    # The uninterrupted run and the one to kill, side by side.
+    proc_a = subprocess.Popen(cmd + ["--out", straight], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)  # fmt: skip
+    proc_b = subprocess.Popen(cmd + ["--out", killed], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)  # fmt: skip
+    deadline = time.time() + 400
+    while time.time() < deadline and checkpoint.latest_step(killed) is None:
+        time.sleep(0.2)
+    proc_b.send_signal(signal.SIGKILL)
+    proc_b.wait()
+    assert proc_a.wait(timeout=400) == 0
+    done_before_kill = len(runner.read_metrics(killed))
+    assert 1 <= done_before_kill < 3
+    resumed = subprocess.run(cmd + ["--out", killed, "--resume"], env=env, capture_output=True,
+                             text=True, timeout=400)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resumed" in resumed.stdout
+    a, b = runner.read_metrics(straight), runner.read_metrics(killed)
+    assert [r["step"] for r in a] == [300, 600, 900]
+    assert _comparable(a) == _comparable(b)
+
+
+def _run_cli(argv, capsys):
+    try:
+        status = main(argv)
+    except SystemExit as e:
+        status = e.code
+    return status, capsys.readouterr()
+
+
+def test_resume_errors_exit_2(tmp_path, capsys):
+    status, out = _run_cli(["train", "--resume", "--out", str(tmp_path / "none")], capsys)
+    assert status == 2 and "does not exist" in out.err
+    run = tmp_path / "run"
+    run.mkdir()
+    runner.write_json_atomic(str(run / "config.json"), SMALL.to_dict())
+    status, out = _run_cli(["train", "--resume", "--out", str(run), "--alpha", "2"], capsys)
+    assert status == 2 and "other settings" in out.err
+    (run / "config.json").write_text("{not json")
+    status, out = _run_cli(["evaluate", str(run)], capsys)
+    assert status == 2 and "corrupt" in out.err
+    assert len(out.err.strip().splitlines()) == 1
+
+
+def test_train_rejects_bad_values(capsys):
+    for argv, message in [
+        (["train", "--env", "ant"], "unknown environment"),
+        (["train", "--algo", "ppo"], "not yet available"),
+        (["train", "--alpha=-1"], "expected a finite number >= 0"),
+        (["train", "--variant", "moon"], "unknown variant"),
+        (["train", "--estimator", "magic"], "invalid choice"),
+    ]:
+        status, out = _run_cli(argv, capsys)
+        assert status == 2, argv
+        assert message in out.err
+        assert len(out.err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_corrupt_checkpoint_is_reported(tmp_path, capsys):
+    run = str(tmp_path / "run")
+    os.makedirs(run)
+    config = with_overrides(PRESETS["smoke"], total_steps=300)
+    runner.train(config, run, log=lambda m: None)
+    step_dir = os.path.join(run, "checkpoints", "300")
+    for root, _, files in os.walk(step_dir):
+        for name in files:
+            with open(os.path.join(root, name), "wb") as f:
+                f.write(b"garbage")
+    status, out = _run_cli(["evaluate", run], capsys)
+    assert status == 2
+    assert "corrupt" in out.err and len(out.err.strip().splitlines()) == 1
+    shutil.rmtree(os.path.join(run, "checkpoints"))
+    status, out = _run_cli(["evaluate", run, "--json"], capsys)
+    assert status == 2 and "no checkpoint" in out.err
+    assert json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[0])["step"]
