@@ -4,10 +4,11 @@ For each environment and batch size, a vmapped ``lax.scan`` of ``--steps`` env s
 actions drawn beforehand, no resets) is timed after compilation (median of ``--repeats``); in the
 same run ``mujoco.rollout`` steps the same MjModel from the same initial states with the same
 controls for the same number of physics steps, on 1 and on 2 threads. Physics presets ``fast``
-(the default) and ``gym`` (Gym's own solver settings) are compared side by side for Hopper.
+(the default), ``gym`` (Gym's own solver settings) and ``fastest`` (one Newton iteration) are
+compared side by side for Hopper.
 
     python benchmarks/env_throughput.py            # all envs, batches 1 8 32 128
-    python benchmarks/env_throughput.py --envs hopper --batches 1 32 --presets fast gym
+    python benchmarks/env_throughput.py --envs hopper --batches 1 32 --compare-presets gym
 
 Writes ``benchmarks/results/env_throughput.json`` and prints a table.
 """
@@ -108,7 +109,8 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", default=list(envs.ENV_NAMES))
     parser.add_argument("--batches", nargs="+", type=int, default=[1, 8, 32, 128])
     parser.add_argument("--presets", nargs="+", default=["fast"])
-    parser.add_argument("--gym-preset-envs", nargs="*", default=["hopper"])
+    parser.add_argument("--compare-envs", nargs="*", default=["hopper"])
+    parser.add_argument("--compare-presets", nargs="*", default=["gym", "fastest"])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default=os.path.join(RESULTS, "env_throughput.json"))
@@ -118,8 +120,8 @@ def main() -> None:
     compiles = []
     for name in args.envs:
         presets = list(args.presets)
-        if name in args.gym_preset_envs and "gym" not in presets:
-            presets.append("gym")
+        if name in args.compare_envs:
+            presets += [p for p in args.compare_presets if p not in presets]
         for preset in presets:
             env = envs.make(name, preset)
             compiles.append({"env": name, "preset": preset, **time_reset_step_compile(env)})

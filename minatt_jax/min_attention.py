@@ -48,7 +48,8 @@ class MAConfig:
       mode: "full" (both terms), "jacobian" (feedback only), "temporal" or "none".
       estimator: feedback-term estimator, one of ESTIMATORS.
       probes: Hutchinson probes per state.
-      subsample: number of batch states the feedback term uses (0 = the whole batch).
+      subsample: number of batch states both terms use (0 = the whole batch); one random
+        subset per update, so each term stays an unbiased estimate of its batch mean.
       interval: compute the feedback term every ``interval`` updates (see the module docstring).
       interval_scaling: weight the feedback term by alpha * interval on the updates computing it.
       temporal: "parameter" (appendix reading, default) or "rollout".
@@ -146,12 +147,21 @@ def feedback_term(
 
 
 def temporal_parameter(
-    u: ControlFn, params: Any, prev_params: Any, obs: jax.Array, dt: float = 1.0
+    u: ControlFn,
+    params: Any,
+    prev_params: Any,
+    obs: jax.Array,
+    dt: float = 1.0,
+    controls: jax.Array | None = None,
 ) -> jax.Array:
-    """Mean ||(u(x; params) - u(x; prev_params)) / dt||^2; prev_params get no gradient."""
+    """Mean ||(u(x; params) - u(x; prev_params)) / dt||^2; prev_params get no gradient.
+
+    ``controls`` may pass u(obs; params) when the caller has computed it already (SAC's actor
+    loss has): then only the previous parameters' forward pass is added.
+    """
     prev = jax.lax.stop_gradient(prev_params)
-    now = jax.vmap(lambda x: u(params, x))(obs)
-    before = jax.vmap(lambda x: u(prev, x))(obs)
+    now = jax.vmap(lambda x: u(params, x))(obs) if controls is None else controls
+    before = jax.lax.stop_gradient(jax.vmap(lambda x: u(prev, x))(obs))
     return jnp.mean(jnp.sum(jnp.square((now - before) / dt), axis=-1))
 
 
@@ -174,24 +184,38 @@ def penalty(
     prev_params: Any = None,
     next_obs: jax.Array | None = None,
     update_step: jax.Array | int = 0,
+    controls: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted MA penalty and its parts ``{'feedback', 'temporal', 'penalty'}``.
 
     ``prev_params`` is needed for the parameter reading of the temporal term, ``next_obs`` for the
     rollout reading; ``update_step`` selects the updates that compute the feedback term when
-    ``config.interval > 1``.
+    ``config.interval > 1``; ``controls`` (u at ``obs``, differentiable in ``params``) saves the
+    temporal term a forward pass when the caller has it.
     """
     zero = jnp.zeros((), jnp.float32)
     feedback, temporal, total = zero, zero, zero
+    key_sub, key_probe = jax.random.split(key)
+    n = obs.shape[0]
+    if 0 < config.subsample < n:
+        # One subsample serves both terms: each is then an unbiased estimate of its batch mean.
+        idx = jax.random.choice(key_sub, n, (config.subsample,), replace=False)
+        obs = obs[idx]
+        controls = None if controls is None else controls[idx]
+        next_obs = None if next_obs is None else next_obs[idx]
     if config.uses_feedback:
+
+        def feedback_fn() -> jax.Array:
+            if config.estimator == "hutchinson":
+                return jnp.mean(feedback_hutchinson(u, params, obs, key_probe, config.probes))
+            return jnp.mean(feedback_exact(u, params, obs, config.estimator))
+
         if config.interval == 1:
-            feedback = feedback_term(config, u, params, obs, key)
+            feedback = feedback_fn()
             weight = config.alpha
         else:
             due = jnp.asarray(update_step) % config.interval == 0
-            feedback = jax.lax.cond(
-                due, lambda: feedback_term(config, u, params, obs, key), lambda: zero
-            )
+            feedback = jax.lax.cond(due, feedback_fn, lambda: zero)
             scale = config.interval if config.interval_scaling else 1
             weight = jnp.where(due, config.alpha * scale, 0.0)
         total = total + weight * feedback
@@ -199,7 +223,9 @@ def penalty(
         if config.temporal == "parameter":
             if prev_params is None:
                 raise ValueError("the parameter reading of the temporal term needs prev_params")
-            temporal = temporal_parameter(u, params, prev_params, obs, config.temporal_dt)
+            temporal = temporal_parameter(
+                u, params, prev_params, obs, config.temporal_dt, controls=controls
+            )
         else:
             if next_obs is None:
                 raise ValueError("the rollout reading of the temporal term needs next_obs")

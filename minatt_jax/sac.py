@@ -121,7 +121,7 @@ def make_sac(
             pen, parts = ma.penalty(
                 ma_config, control, actor_params, batch.obs, k_ma,
                 prev_params=state.prev_actor_params, next_obs=batch.next_obs,
-                update_step=state.updates,
+                update_step=state.updates, controls=jnp.tanh(mean),
             )  # fmt: skip
             loss = loss + pen
             metrics.update({f"ma_{k}": v for k, v in parts.items()})

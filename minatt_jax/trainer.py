@@ -82,10 +82,11 @@ def make_trainer(config: TrainConfig) -> Trainer:
         tasks = jax.vmap(lambda k: envs.sample_task(k, task_set))(jax.random.split(k_task, n))
         return jax.vmap(env.reset)(jax.random.split(k_reset, n), tasks)
 
-    def init(key: jax.Array) -> TrainState:
+    @jax.jit
+    def init_compiled(key: jax.Array) -> TrainState:
         k_agent, k_env, k_run = jax.random.split(key, 3)
         env_state = reset_envs(k_env)
-        ts = TrainState(
+        return TrainState(
             agent=sac.init(k_agent),
             buffer=replay.init_buffer(config.buffer_size, obs_dim, act_dim),
             env_state=env_state,
@@ -96,12 +97,14 @@ def make_trainer(config: TrainConfig) -> Trainer:
             rng=k_run,
             env_steps=jnp.zeros((), jnp.int32),
         )
-        # Every leaf its own buffer, committed to the device: the state is donated to
-        # train_chunk (donation fails when one buffer appears twice, and reset shares one zero
-        # among several fields), and jit keys its cache on committed-ness, so uncommitted
-        # leaves here would compile train_chunk a second time on its own outputs.
-        ts = jax.tree.map(lambda x: jnp.array(x, copy=True), ts)
-        return jax.device_put(ts, jax.devices()[0])
+
+    def init(key: jax.Array) -> TrainState:
+        # Compiled (an eager MJX reset takes tens of seconds). Every leaf then gets its own
+        # buffer: the state is donated to train_chunk, and donation fails when one buffer
+        # appears twice (XLA may return one buffer for equal outputs). The copies stay
+        # committed to the device, as jit keys its cache on committed-ness.
+        ts = init_compiled(key)
+        return jax.device_put(jax.tree.map(lambda x: jnp.array(x, copy=True), ts), jax.devices()[0])
 
     def act(ts: TrainState, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Exploration actions for every environment and the new OU state."""
