@@ -104,6 +104,54 @@ def time_reset_step_compile(env: envs.LocomotionEnv) -> dict:
     return {"reset_compile_s": reset_s, "step_compile_s": time.perf_counter() - t0}
 
 
+def write_results(args: argparse.Namespace, rows: list, compiles: list, final: bool) -> None:
+    """Writes the JSON (after every row, so an interrupted run keeps what it measured)."""
+    summary = []
+    for name in dict.fromkeys(r["env"] for r in rows):
+        for preset in dict.fromkeys(r["preset"] for r in rows if r["env"] == name):
+            sel = [r for r in rows if r["env"] == name and r["preset"] == preset]
+            best = max(sel, key=lambda r: r["mjx_physics_steps_per_s"])
+            c_best = max(
+                max(r["c_physics_steps_per_s_1thread"], r["c_physics_steps_per_s_2threads"])
+                for r in sel
+            )
+            summary.append(
+                {
+                    "env": name,
+                    "preset": preset,
+                    "best_batch": best["batch"],
+                    "best_mjx_physics_steps_per_s": best["mjx_physics_steps_per_s"],
+                    "best_c_physics_steps_per_s": c_best,
+                    "ratio_best_mjx_over_best_c": best["mjx_physics_steps_per_s"] / c_best,
+                    "ratio_at_best_batch": best["mjx_over_c_best"],
+                }
+            )
+    if final:
+        print("\nbest batch per env (physics steps/s; C = best of 1 and 2 threads, all batches)")
+        print(f"{'env':12s} {'preset':8s} {'batch':>5s} {'MJX':>9s} {'C':>9s} {'MJX/C':>6s}")
+        for s in summary:
+            print(
+                f"{s['env']:12s} {s['preset']:8s} {s['best_batch']:5d} "
+                f"{s['best_mjx_physics_steps_per_s']:9.0f} {s['best_c_physics_steps_per_s']:9.0f} "
+                f"{s['ratio_best_mjx_over_best_c']:6.3f}"
+            )
+    out = {
+        "benchmark": "env_throughput",
+        "complete": final,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+        "versions": {"jax": jax.__version__, "mujoco": mujoco.__version__},
+        "steps_per_rollout": args.steps,
+        "compile": compiles,
+        "rows": rows,
+        "summary": summary,
+    }
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    tmp = args.out + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(out, f, indent=2)
+    os.replace(tmp, args.out)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(envs.ENV_NAMES))
@@ -154,48 +202,9 @@ def main() -> None:
                     f"{row['scan_compile_s']:.1f} s",
                     flush=True,
                 )
+                write_results(args, rows, compiles, final=False)  # partial results survive
 
-    summary = []
-    for name in args.envs:
-        for preset in {r["preset"] for r in rows if r["env"] == name}:
-            sel = [r for r in rows if r["env"] == name and r["preset"] == preset]
-            best = max(sel, key=lambda r: r["mjx_physics_steps_per_s"])
-            c_best = max(
-                max(r["c_physics_steps_per_s_1thread"], r["c_physics_steps_per_s_2threads"])
-                for r in sel
-            )
-            summary.append(
-                {
-                    "env": name,
-                    "preset": preset,
-                    "best_batch": best["batch"],
-                    "best_mjx_physics_steps_per_s": best["mjx_physics_steps_per_s"],
-                    "best_c_physics_steps_per_s": c_best,
-                    "ratio_best_mjx_over_best_c": best["mjx_physics_steps_per_s"] / c_best,
-                }
-            )
-    print("\nbest batch per env (physics steps/s; C = best of 1 and 2 threads over all batches)")
-    print(f"{'env':12s} {'preset':6s} {'batch':>5s} {'MJX':>9s} {'C':>9s} {'MJX/C':>6s}")
-    for s in summary:
-        print(
-            f"{s['env']:12s} {s['preset']:6s} {s['best_batch']:5d} "
-            f"{s['best_mjx_physics_steps_per_s']:9.0f} {s['best_c_physics_steps_per_s']:9.0f} "
-            f"{s['ratio_best_mjx_over_best_c']:6.3f}"
-        )
-    out = {
-        "benchmark": "env_throughput",
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
-        "versions": {"jax": jax.__version__, "mujoco": mujoco.__version__},
-        "steps_per_rollout": args.steps,
-        "compile": compiles,
-        "rows": rows,
-        "summary": summary,
-    }
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(out, f, indent=2)
-    os.replace(tmp, args.out)
+    write_results(args, rows, compiles, final=True)
     print(f"wrote {args.out}")
 
 

@@ -38,16 +38,26 @@ class Actor(nn.Module):
 
 
 class TwinCritic(nn.Module):
-    """Two independent Q networks Q(s, a); returns shape (2, ...)."""
+    """Two independent Q networks Q(s, a); returns shape (2, ...).
+
+    The two networks' parameters are stacked and the MLP vmapped over them, so each layer of
+    both critics is one batched matmul.
+    """
 
     hidden: Sequence[int]
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, action], axis=-1)
-        q1 = MLP(self.hidden, 1)(x)[..., 0]
-        q2 = MLP(self.hidden, 1)(x)[..., 0]
-        return jnp.stack([q1, q2])
+        critics = nn.vmap(
+            MLP,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            out_axes=0,
+            axis_size=2,
+        )
+        return critics(self.hidden, 1)(x)[..., 0]
 
 
 def sample_tanh_gaussian(

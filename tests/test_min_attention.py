@@ -163,3 +163,15 @@ def test_invalid_config_is_rejected():
         ma.MAConfig(estimator="magic")
     with pytest.raises(ValueError, match="alpha"):
         ma.MAConfig(alpha=-1.0)
+
+
+def test_per_state_penalty_matches_the_batch_penalty(problem):
+    """The reward-shaping placement's per-state values average to the actor-loss penalty."""
+    params, obs = problem
+    prev = jax.tree.map(lambda x: x - 0.05, params)
+    cfg = ma.MAConfig(alpha=0.3, estimator="jacfwd", subsample=0)
+    key = jax.random.PRNGKey(0)
+    per_state = ma.per_state_penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
+    total, _ = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
+    assert per_state.shape == (obs.shape[0],)
+    assert float(jnp.mean(per_state)) == pytest.approx(float(total), rel=1e-5)
