@@ -313,17 +313,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _write_json_atomic(path: str, obj: Any) -> None:
-    """Writes JSON through a temporary file and a rename, so a crash never leaves half a file."""
-    import os
-    import tempfile
+    """Writes JSON atomically; an unwritable path is a user error."""
+    from minatt_jax.runner import write_json_atomic
 
-    directory = os.path.dirname(os.path.abspath(path))
     try:
-        os.makedirs(directory, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2)
-        os.replace(tmp, path)
+        write_json_atomic(path, obj)
     except OSError as e:
         raise UserError(f"cannot write {path}: {e.strerror or e}") from None
 
