@@ -141,9 +141,39 @@ def feedback_term(
     if 0 < config.subsample < n:
         idx = jax.random.choice(key_sub, n, (config.subsample,), replace=False)
         obs = obs[idx]
+    return jnp.mean(_feedback_per_state(config, u, params, obs, key_probe))
+
+
+def _feedback_per_state(
+    config: MAConfig, u: ControlFn, params: Any, obs: jax.Array, key: jax.Array
+) -> jax.Array:
+    """||du/dx||_F^2 per state with the configured estimator (no subsample)."""
     if config.estimator == "hutchinson":
-        return jnp.mean(feedback_hutchinson(u, params, obs, key_probe, config.probes))
-    return jnp.mean(feedback_exact(u, params, obs, config.estimator))
+        return feedback_hutchinson(u, params, obs, key, config.probes)
+    return feedback_exact(u, params, obs, config.estimator)
+
+
+def _temporal_per_state(
+    config: MAConfig,
+    u: ControlFn,
+    params: Any,
+    obs: jax.Array,
+    prev_params: Any,
+    next_obs: jax.Array | None,
+    controls: jax.Array | None,
+) -> jax.Array:
+    """||du/dt||^2 per state in the configured reading (parameter or rollout)."""
+    now = jax.vmap(lambda x: u(params, x))(obs) if controls is None else controls
+    if config.temporal == "parameter":
+        if prev_params is None:
+            raise ValueError("the parameter reading of the temporal term needs prev_params")
+        prev = jax.lax.stop_gradient(prev_params)
+        other = jax.lax.stop_gradient(jax.vmap(lambda x: u(prev, x))(obs))
+    else:
+        if next_obs is None:
+            raise ValueError("the rollout reading of the temporal term needs next_obs")
+        other = jax.vmap(lambda x: u(params, x))(next_obs)
+    return jnp.sum(jnp.square((now - other) / config.temporal_dt), axis=-1)
 
 
 def temporal_parameter(
@@ -159,19 +189,16 @@ def temporal_parameter(
     ``controls`` may pass u(obs; params) when the caller has computed it already (SAC's actor
     loss has): then only the previous parameters' forward pass is added.
     """
-    prev = jax.lax.stop_gradient(prev_params)
-    now = jax.vmap(lambda x: u(params, x))(obs) if controls is None else controls
-    before = jax.lax.stop_gradient(jax.vmap(lambda x: u(prev, x))(obs))
-    return jnp.mean(jnp.sum(jnp.square((now - before) / dt), axis=-1))
+    config = MAConfig(temporal="parameter", temporal_dt=dt)
+    return jnp.mean(_temporal_per_state(config, u, params, obs, prev_params, None, controls))
 
 
 def temporal_rollout(
     u: ControlFn, params: Any, obs: jax.Array, next_obs: jax.Array, dt: float
 ) -> jax.Array:
     """Mean ||(u(x') - u(x)) / dt||^2 over consecutive-state pairs (x, x')."""
-    a = jax.vmap(lambda x: u(params, x))(obs)
-    b = jax.vmap(lambda x: u(params, x))(next_obs)
-    return jnp.mean(jnp.sum(jnp.square((b - a) / dt), axis=-1))
+    config = MAConfig(temporal="rollout", temporal_dt=dt)
+    return jnp.mean(_temporal_per_state(config, u, params, obs, None, next_obs, None))
 
 
 def penalty(
@@ -206,9 +233,7 @@ def penalty(
     if config.uses_feedback:
 
         def feedback_fn() -> jax.Array:
-            if config.estimator == "hutchinson":
-                return jnp.mean(feedback_hutchinson(u, params, obs, key_probe, config.probes))
-            return jnp.mean(feedback_exact(u, params, obs, config.estimator))
+            return jnp.mean(_feedback_per_state(config, u, params, obs, key_probe))
 
         if config.interval == 1:
             feedback = feedback_fn()
@@ -220,16 +245,9 @@ def penalty(
             weight = jnp.where(due, config.alpha * scale, 0.0)
         total = total + weight * feedback
     if config.uses_temporal:
-        if config.temporal == "parameter":
-            if prev_params is None:
-                raise ValueError("the parameter reading of the temporal term needs prev_params")
-            temporal = temporal_parameter(
-                u, params, prev_params, obs, config.temporal_dt, controls=controls
-            )
-        else:
-            if next_obs is None:
-                raise ValueError("the rollout reading of the temporal term needs next_obs")
-            temporal = temporal_rollout(u, params, obs, next_obs, config.temporal_dt)
+        temporal = jnp.mean(
+            _temporal_per_state(config, u, params, obs, prev_params, next_obs, controls)
+        )
         total = total + config.alpha * temporal
     return total, {"feedback": feedback, "temporal": temporal, "penalty": total}
 
@@ -286,15 +304,7 @@ def per_state_penalty(
     """
     total = jnp.zeros(obs.shape[:1], jnp.float32)
     if config.uses_feedback:
-        if config.estimator == "hutchinson":
-            total = total + feedback_hutchinson(u, params, obs, key, config.probes)
-        else:
-            total = total + feedback_exact(u, params, obs, config.estimator)
+        total = total + _feedback_per_state(config, u, params, obs, key)
     if config.uses_temporal:
-        now = jax.vmap(lambda x: u(params, x))(obs)
-        if config.temporal == "parameter":
-            other = jax.vmap(lambda x: u(prev_params, x))(obs)
-        else:
-            other = jax.vmap(lambda x: u(params, x))(next_obs)
-        total = total + jnp.sum(jnp.square((now - other) / config.temporal_dt), axis=-1)
+        total = total + _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
     return config.alpha * total
