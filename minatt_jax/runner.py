@@ -126,20 +126,20 @@ def train(
     eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
     record: dict[str, Any] = {}
     start = time.perf_counter()
-    steps_done_here = 0
     while int(state.env_steps) < config.total_steps:
         t0 = time.perf_counter()
         state, train_metrics = chunk(state)
         state = jax.block_until_ready(state)
         chunk_s = time.perf_counter() - t0
         step = int(state.env_steps)
-        steps_done_here += trainer.steps_per_chunk
         t0 = time.perf_counter()
         result = trainer.evaluate(state, jax.random.fold_in(eval_key, step), trainer.task_set)
         evaluation = summarize(jax.device_get(result), trainer.env.dt)
         eval_s = time.perf_counter() - t0
         elapsed = time.perf_counter() - start
-        remaining = (config.total_steps - step) / max(steps_done_here / elapsed, 1e-9)
+        # The latest chunk's rate: the first chunks are faster (warm-up steps make no updates).
+        chunks_left = -(-(config.total_steps - step) // trainer.steps_per_chunk)
+        remaining = chunks_left * (chunk_s + eval_s)
         record = {
             "step": step,
             **evaluation,
