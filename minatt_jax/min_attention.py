@@ -5,7 +5,7 @@ penalty = alpha * (feedback + temporal), with
 * feedback = mean over states of ||du/dx||_F^2, the Jacobian of the deterministic control with
   respect to the observation the policy receives. Estimators: ``jacfwd`` and ``jacrev`` (exact),
   ``hutchinson`` (k Rademacher probes v in action space, E ||v^T J||^2 = ||J||_F^2, one VJP per
-  probe: unbiased, cheaper, noisier). Optionally on a random subsample of the batch.
+  probe: unbiased, noisier). Optionally on the leading states of a (randomly ordered) batch.
 * temporal = mean over states of ||(u(x; theta) - u(x; theta_prev)) / dt||^2, the appendix reading
   (change of the control law over learning time at fixed states, theta_prev = the parameters before
   the last update, held fixed), or, as an option, the rollout reading ||(u(x') - u(x)) / dt||^2 over
@@ -60,9 +60,9 @@ class MAConfig:
 
     alpha: float = 0.0
     mode: str = "full"
-    estimator: str = "hutchinson"
+    estimator: str = "jacrev"
     probes: int = 1
-    subsample: int = 64
+    subsample: int = 32
     interval: int = 1
     interval_scaling: bool = True
     temporal: str = "parameter"
