@@ -35,9 +35,9 @@ COMPARED = {
 }
 
 
-def run_episodes(name: str, model: mujoco.MjModel, inits, actions, frame_skip: int):
+def run_episodes(env: envs.LocomotionEnv, model: mujoco.MjModel, inits, actions):
     """Episode lengths, summed forward velocities and the state after 6 steps."""
-    env = envs.make(name)
+    name, frame_skip = env.name, env.frame_skip
     d = mujoco.MjData(model)
     lengths, forward, early = [], [], []
     for (qpos, qvel), acts in zip(inits, actions, strict=True):
@@ -95,7 +95,7 @@ def main() -> None:
         reference = None
         for label, options in COMPARED.items():
             model = load_model(name, options)
-            lengths, forward, early = run_episodes(name, model, inits, actions, env.frame_skip)
+            lengths, forward, early = run_episodes(env, model, inits, actions)
             if reference is None:
                 reference = early
             deviation = float(np.mean(np.max(np.abs(early - reference), axis=1)))

@@ -8,6 +8,7 @@ writes the same metrics as one never interrupted (timings aside).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tempfile
@@ -18,6 +19,7 @@ from typing import Any
 import jax
 import numpy as np
 
+import minatt_jax.envs as envs
 from minatt_jax import checkpoint
 from minatt_jax.config import TrainConfig
 from minatt_jax.evaluation import summarize
@@ -175,9 +177,6 @@ def evaluate_run(
     run_dir: str, task_set_name: str | None, episodes: int | None, seed: int = 0
 ) -> dict[str, Any]:
     """Evaluates the latest checkpoint of ``run_dir`` on a task set; returns the metrics."""
-    import dataclasses
-
-    import minatt_jax.envs as envs
 
     config = load_config(run_dir)
     if episodes is not None:

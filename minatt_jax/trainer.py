@@ -16,6 +16,7 @@ reset.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -68,8 +69,6 @@ def make_trainer(config: TrainConfig) -> Trainer:
     obs_dim, act_dim = env.observation_size, env.action_size
     ma_config = config.ma
     if ma_config.temporal == "rollout" and ma_config.temporal_dt == 1.0:
-        import dataclasses
-
         ma_config = dataclasses.replace(ma_config, temporal_dt=env.dt)
     sac = make_sac(obs_dim, act_dim, config.sac, ma_config, config.caps)
     n = config.num_envs
