@@ -8,7 +8,62 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from minatt_jax.dynamics_ensemble import ModelConfig
 from minatt_jax.min_attention import CAPSConfig, MAConfig
+
+ALGOS = ("sac", "mbpo", "mbmpo")
+
+
+@dataclasses.dataclass(frozen=True)
+class MBConfig:
+    """The model-based loop (mbpo, mbmpo): defaults are the paper's appendix / MBPO hopper values.
+
+    Attributes:
+      epoch_length: env steps per epoch (the rollout-length schedule counts epochs).
+      model_train_every: env steps between model fits (each followed by a rollout).
+      rollout_batch: start states per rollout (split evenly over the slots).
+      rollout_schedule: (start_epoch, end_epoch, min_len, max_len): the rollout length grows
+        linearly from min_len to max_len between the two epochs (MBPO's hopper schedule).
+      model_buffer_size: capacity of the imagined-transition buffer (all slots together).
+      real_ratio: fraction of each agent batch drawn from real data (the rest from the model).
+      agent_updates_per_step: agent updates per env step.
+      obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
+      meta_inner_lr: beta of the MAML inner step theta' = theta - beta grad L_i(theta).
+      meta_first_order: drop the inner gradient's dependence on theta (first-order MAML).
+    """
+
+    epoch_length: int = 1000
+    model_train_every: int = 250
+    rollout_batch: int = 100_000
+    rollout_schedule: tuple[int, int, int, int] = (20, 100, 1, 15)
+    model_buffer_size: int = 2_000_000
+    real_ratio: float = 0.05
+    agent_updates_per_step: int = 2
+    obs_clip: float = 100.0
+    meta_inner_lr: float = 1e-3
+    meta_first_order: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("epoch_length", "model_train_every", "rollout_batch", "model_buffer_size",
+                     "agent_updates_per_step"):  # fmt: skip
+            if getattr(self, name) <= 0:
+                raise ValueError(f"mb {name} must be positive, got {getattr(self, name)}")
+        start, end, lo, hi = self.rollout_schedule
+        if not (0 < lo <= hi and 0 <= start <= end):
+            raise ValueError(f"mb rollout_schedule must be (start, end, min>0, max>=min), got "
+                             f"{self.rollout_schedule}")  # fmt: skip
+        if not 0.0 <= self.real_ratio <= 1.0:
+            raise ValueError(f"mb real_ratio must be in [0, 1], got {self.real_ratio}")
+        if self.meta_inner_lr < 0:
+            raise ValueError(f"mb meta_inner_lr must be >= 0, got {self.meta_inner_lr}")
+
+    def rollout_length(self, epoch):
+        """The scheduled rollout length at ``epoch`` (works on ints and traced arrays)."""
+        start, end, lo, hi = self.rollout_schedule
+        frac = (epoch - start) / max(end - start, 1)
+        frac = frac * (frac > 0)
+        frac = frac - (frac - 1) * (frac > 1)
+        return (lo + frac * (hi - lo)) // 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +108,8 @@ class TrainConfig:
     sac: SACConfig = SACConfig()
     ma: MAConfig = MAConfig()
     caps: CAPSConfig = CAPSConfig()
+    model: ModelConfig = ModelConfig()
+    mb: MBConfig = MBConfig()
 
     def __post_init__(self) -> None:
         positive = ("total_steps", "num_envs", "updates_per_step", "buffer_size",
@@ -64,6 +121,10 @@ class TrainConfig:
             raise ValueError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
         if self.noise not in ("gaussian", "ou"):
             raise ValueError(f"noise must be 'gaussian' or 'ou', got {self.noise!r}")
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algorithm {self.algo!r}; choose from {', '.join(ALGOS)}")
+        if self.algo != "sac" and self.num_envs != 1:
+            raise ValueError(f"{self.algo} collects real data in one environment (num_envs 1)")
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
 
@@ -73,10 +134,18 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """Inverse of ``to_dict`` (as read back from ``config.json``)."""
-        top = {k: v for k, v in d.items() if k not in ("sac", "ma", "caps")}
+        nested = ("sac", "ma", "caps", "model", "mb")
+        top = {k: v for k, v in d.items() if k not in nested}
         sac = {**d["sac"], "hidden": tuple(d["sac"]["hidden"])}
+        model = {k: tuple(v) if isinstance(v, list) else v for k, v in d.get("model", {}).items()}
+        mb = {k: tuple(v) if isinstance(v, list) else v for k, v in d.get("mb", {}).items()}
         return cls(
-            **top, sac=SACConfig(**sac), ma=MAConfig(**d["ma"]), caps=CAPSConfig(**d["caps"])
+            **top,
+            sac=SACConfig(**sac),
+            ma=MAConfig(**d["ma"]),
+            caps=CAPSConfig(**d["caps"]),
+            model=ModelConfig(**model),
+            mb=MBConfig(**mb),
         )
 
 
@@ -116,8 +185,8 @@ PRESETS: dict[str, TrainConfig] = {
 
 
 def with_overrides(config: TrainConfig, **fields: Any) -> TrainConfig:
-    """A copy with top-level fields, ``ma_<field>``, ``sac_<field>`` or ``caps_<field>`` set."""
-    top, nested = {}, {"ma": {}, "sac": {}, "caps": {}}
+    """A copy with top-level fields or ``<group>_<field>`` set (ma, sac, caps, model, mb)."""
+    top, nested = {}, {"ma": {}, "sac": {}, "caps": {}, "model": {}, "mb": {}}
     for key, value in fields.items():
         if value is None:
             continue

@@ -25,7 +25,8 @@ from minatt_jax.config import TrainConfig
 from minatt_jax.evaluation import summarize
 from minatt_jax.trainer import make_trainer
 
-TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "wall_s", "chunk_s", "eval_s", "compile_s")
+TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "chunk_s", "eval_s",
+               "compile_s")  # fmt: skip
 
 
 class RunError(Exception):
@@ -42,6 +43,12 @@ def write_json_atomic(path: str, obj: Any) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def _json_value(v: Any) -> float | list:
+    """A metric as JSON: a float, or a list for per-member arrays (holdout MSE, elites)."""
+    v = np.asarray(v)
+    return float(v) if v.ndim == 0 else v.tolist()
 
 
 def read_metrics(run_dir: str) -> list[dict[str, Any]]:
@@ -145,9 +152,14 @@ def train(
         record = {
             "step": step,
             **evaluation,
-            **{k: float(v) for k, v in jax.device_get(train_metrics).items()},
+            **{k: _json_value(v) for k, v in jax.device_get(train_metrics).items()},
             "env_steps_per_s": trainer.steps_per_chunk / chunk_s,
             "updates_per_s": float(train_metrics["updates"]) / chunk_s,
+            **(
+                {"imagined_per_s": float(train_metrics["imagined_transitions"]) / chunk_s}
+                if "imagined_transitions" in train_metrics
+                else {}
+            ),
             "chunk_s": chunk_s,
             "eval_s": eval_s,
             "compile_s": compile_s,
@@ -159,7 +171,7 @@ def train(
             os.fsync(f.fileno())
         if writer is not None:
             for k, v in record.items():
-                if k != "step" and np.isfinite(v):
+                if k != "step" and not isinstance(v, list) and np.isfinite(v):
                     writer.add_scalar(k, v, step)
             writer.flush()
         checkpoint.save(run_dir, step, state)

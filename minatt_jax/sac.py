@@ -44,6 +44,10 @@ class SAC(NamedTuple):
     update: Callable[[SACState, Transitions, jax.Array], tuple[SACState, dict]]
     control: Callable[[Any, jax.Array], jax.Array]  # deterministic u(params, obs)
     sample: Callable[[Any, jax.Array, jax.Array], jax.Array]  # (params, obs, key) -> action
+    # The pieces of ``update``, for algorithms that replace the actor step (MB-MPO's meta step):
+    critic_step: Callable[[SACState, Transitions, jax.Array], tuple[SACState, dict]]
+    actor_loss: Callable[..., tuple[jax.Array, tuple[dict, jax.Array]]]
+    finish_actor_step: Callable[[SACState, Any, jax.Array], SACState]
 
 
 def make_sac(
@@ -133,18 +137,17 @@ def make_sac(
             metrics.update(parts)
         return loss, (metrics, jnp.mean(logp))
 
-    def update(state: SACState, batch: Transitions, key: jax.Array) -> tuple[SACState, dict]:
-        k_critic, k_actor = jax.random.split(key)
+    def critic_step(state: SACState, batch: Transitions, key: jax.Array) -> tuple[SACState, dict]:
+        """One critic gradient step."""
         (_, c_metrics), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
-            state.critic_params, state, batch, k_critic
+            state.critic_params, state, batch, key
         )
         c_updates, critic_opt = critic_tx.update(c_grads, state.critic_opt, state.critic_params)
         critic_params = optax.apply_updates(state.critic_params, c_updates)
-        state = state.replace(critic_params=critic_params, critic_opt=critic_opt)
+        return state.replace(critic_params=critic_params, critic_opt=critic_opt), c_metrics
 
-        (_, (a_metrics, mean_logp)), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
-            state.actor_params, state, batch, k_actor
-        )
+    def finish_actor_step(state: SACState, a_grads: Any, mean_logp: jax.Array) -> SACState:
+        """Applies actor gradients, then the entropy-coefficient and target-critic updates."""
         a_updates, actor_opt = actor_tx.update(a_grads, state.actor_opt, state.actor_params)
         actor_params = optax.apply_updates(state.actor_params, a_updates)
 
@@ -154,8 +157,10 @@ def make_sac(
         e_grad = jax.grad(entropy_loss)(state.log_entropy_coef)
         e_updates, entropy_opt = entropy_tx.update(e_grad, state.entropy_opt)
         log_ent = optax.apply_updates(state.log_entropy_coef, e_updates)
-        target = optax.incremental_update(critic_params, state.target_critic_params, config.tau)
-        new_state = state.replace(
+        target = optax.incremental_update(
+            state.critic_params, state.target_critic_params, config.tau
+        )
+        return state.replace(
             actor_params=actor_params,
             actor_opt=actor_opt,
             prev_actor_params=state.actor_params,
@@ -164,10 +169,28 @@ def make_sac(
             target_critic_params=target,
             updates=state.updates + 1,
         )
-        metrics = {**c_metrics, **a_metrics, "entropy_coef": jnp.exp(log_ent)}
+
+    def update(state: SACState, batch: Transitions, key: jax.Array) -> tuple[SACState, dict]:
+        k_critic, k_actor = jax.random.split(key)
+        state, c_metrics = critic_step(state, batch, k_critic)
+        (_, (a_metrics, mean_logp)), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
+            state.actor_params, state, batch, k_actor
+        )
+        new_state = finish_actor_step(state, a_grads, mean_logp)
+        metrics = {
+            **c_metrics, **a_metrics, "entropy_coef": jnp.exp(new_state.log_entropy_coef)
+        }  # fmt: skip
         return new_state, metrics
 
-    return SAC(init=init, update=update, control=control, sample=sample)
+    return SAC(
+        init=init,
+        update=update,
+        control=control,
+        sample=sample,
+        critic_step=critic_step,
+        actor_loss=actor_loss,
+        finish_actor_step=finish_actor_step,
+    )
 
 
 def metric_names(ma_config: ma.MAConfig, caps_config: ma.CAPSConfig) -> tuple[str, ...]:

@@ -62,7 +62,14 @@ class Trainer(NamedTuple):
 
 
 def make_trainer(config: TrainConfig) -> Trainer:
-    """Builds the environment, agent and jitted functions for ``config``."""
+    """Builds the environment, agent and jitted functions for ``config``.
+
+    ``algo`` "sac" is model-free (this module); "mbpo" and "mbmpo" are built by ``model_based``.
+    """
+    if config.algo != "sac":
+        from minatt_jax.model_based import make_mb_trainer
+
+        return make_mb_trainer(config)
     env = envs.make(config.env, config.physics)
     envs.check_task_set_name(config.task_set)
     task_set = envs.task_set(env, config.task_set)
