@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_train = sub.add_parser("train", help="train an agent (writes a run directory)")
     p_train.add_argument("--env", default=None, help=f"one of {', '.join(ENV_NAMES)}")
-    p_train.add_argument("--algo", default=None, help="sac (mbpo and mbmpo: coming)")
+    p_train.add_argument("--algo", default=None, help="sac (default), mbpo or mbmpo")
     p_train.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
     p_train.add_argument("--alpha", type=_non_negative_float, default=None, help="MA weight")
     p_train.add_argument("--ma-mode", choices=MODES, default=None)
@@ -98,6 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument("--num-envs", type=_positive_int, default=None)
     p_train.add_argument("--seed", type=_non_negative_int, default=None)
     p_train.add_argument("--normalize-obs", action="store_true", default=None)
+    p_train.add_argument("--ensemble-size", type=_positive_int, default=None, help="M members")
+    p_train.add_argument("--elites", type=_positive_int, default=None, help="elites = mbmpo tasks")
+    p_train.add_argument("--rollout-batch", type=_positive_int, default=None)
+    p_train.add_argument("--updates-per-step", type=_positive_int, default=None)
+    p_train.add_argument("--inner-lr", type=_non_negative_float, default=None, help="mbmpo beta")
+    p_train.add_argument("--first-order", action="store_true", default=None, help="FO-MAML")
     p_train.add_argument("--out", default=None, help="run directory (default runs/<name>)")
     p_train.add_argument("--resume", action="store_true", help="continue the run in --out")
 
@@ -209,6 +215,9 @@ _TRAIN_FLAGS = {
     "caps_lambda_t": "caps_lambda_t", "caps_lambda_s": "caps_lambda_s", "noise": "noise",
     "variant": "task_set", "steps": "total_steps", "eval_every": "eval_every",
     "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac_normalize_obs",
+    "ensemble_size": "model_ensemble_size", "elites": "model_num_elites",
+    "rollout_batch": "mb_rollout_batch", "inner_lr": "mb_meta_inner_lr",
+    "first_order": "mb_meta_first_order",
 }  # fmt: skip
 
 
@@ -232,10 +241,16 @@ def _train_config(args: argparse.Namespace):
             raise UserError(str(e)) from None
     else:
         base = PRESETS[args.preset]
+    updates = getattr(args, "updates_per_step", None)
+    algo = overrides.get("algo", base.algo)
+    if updates is not None:
+        overrides["updates_per_step" if algo == "sac" else "mb_agent_updates_per_step"] = updates
+    if "model_ensemble_size" in overrides and "model_num_elites" not in overrides:
+        overrides["model_num_elites"] = min(base.model.num_elites, overrides["model_ensemble_size"])
+    if algo == "mbmpo" and "task_set" not in overrides and not args.resume:
+        overrides["task_set"] = "train"  # meta-training collects data across the train tasks
     try:
         config = with_overrides(base, **overrides)
-        if config.algo not in ("sac",):
-            raise UserError(f"unknown or not yet available algorithm {config.algo!r}; use sac")
         if config.env not in envs.ENV_NAMES:
             envs.make(config.env)  # raises UnknownNameError with the list of names
         envs.check_task_set_name(config.task_set)

@@ -12,7 +12,7 @@ its ``train_chunk`` scans ``eval_every`` iterations, each of which
    imagined transitions in that slot's model buffer;
 3. ``agent_updates_per_step`` agent updates on batches of (1 - real_ratio) model and real_ratio
    real data: mbpo a SAC update (MA in the actor loss); mbmpo the meta step of ``maml`` with the
-   slots as tasks (support and query batches from slot i's data).
+   slots as tasks (support and query batches from slot i's data, the batch split over tasks).
 
 All of it, model fitting included, is one jitted function over one ``MBTrainState`` pytree, so
 the run compiles once and a checkpoint of the state resumes it exactly.
@@ -84,16 +84,14 @@ def make_mb_trainer(config: TrainConfig):
     per_slot = mb.rollout_batch // slots
     max_len = mb.rollout_schedule[3]
     slot_capacity = mb.model_buffer_size // slots
-    if per_slot < 1:
-        raise ValueError(f"mb rollout_batch ({mb.rollout_batch}) must be >= num_elites ({slots})")
-    if per_slot * max_len > slot_capacity:
-        raise ValueError(
-            f"mb model_buffer_size ({mb.model_buffer_size}) must hold one rollout: "
-            f">= rollout_batch x max rollout length = {per_slot * slots * max_len}"
-        )
     batch = config.sac.batch_size
     n_real = int(round(mb.real_ratio * batch))
     n_model = batch - n_real
+    # MB-MPO splits the agent batch over the tasks: each task's support and query batches hold
+    # batch / slots transitions (at least 16), real_ratio of them real.
+    task_batch_size = max(batch // slots, 16)
+    t_real = int(round(mb.real_ratio * task_batch_size))
+    t_model = task_batch_size - t_real
     names = metric_names(ma_config, config.caps)
     if meta:
         names = meta_metric_names(names)
@@ -178,8 +176,8 @@ def make_mb_trainer(config: TrainConfig):
         def task_batch(slot, key):
             k_m, k_r = jax.random.split(key)
             return mixed(
-                imagination.sample_slot(ts.model_buffer, slot, k_m, n_model),
-                replay.sample(ts.real, k_r, n_real),
+                imagination.sample_slot(ts.model_buffer, slot, k_m, t_model),
+                replay.sample(ts.real, k_r, t_real),
             )
 
         task_keys = jax.random.split(k_tasks, 2 * slots).reshape(2, slots, -1)
