@@ -125,8 +125,8 @@ def make_ensemble(obs_dim: int, act_dim: int, config: ModelConfig) -> Ensemble:
             layers.append({"w": w, "b": jnp.zeros((m, b))})
         return {
             "layers": layers,
-            "max_logvar": jnp.full((m, out_dim), 0.5),
-            "min_logvar": jnp.full((m, out_dim), -10.0),
+            "max_logvar": jnp.full((m, out_dim), 0.5, jnp.float32),
+            "min_logvar": jnp.full((m, out_dim), -10.0, jnp.float32),
         }
 
     def member_forward(p: dict, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -171,7 +171,7 @@ def make_ensemble(obs_dim: int, act_dim: int, config: ModelConfig) -> Ensemble:
                 out_mean=jnp.zeros((out_dim,)),
                 out_std=jnp.ones((out_dim,)),
             ),
-            holdout_mse=jnp.full((m,), jnp.inf),
+            holdout_mse=jnp.full((m,), jnp.inf, jnp.float32),
             elites=jnp.arange(config.num_elites, dtype=jnp.int32),
             fits=jnp.zeros((), jnp.int32),
             last_epochs=jnp.zeros((), jnp.int32),
