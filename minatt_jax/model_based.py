@@ -146,9 +146,13 @@ def make_mb_trainer(config: TrainConfig):
         random_action = jax.random.uniform(k_random, (1, act_dim), minval=-1.0, maxval=1.0)
         return jnp.where(ts.env_steps < config.warmup_steps, random_action, policy_action)
 
-    def refit_and_imagine(ts: MBTrainState, key: jax.Array) -> tuple[MBTrainState, jax.Array]:
-        k_fit, k_start, k_roll = jax.random.split(key, 3)
-        ens_state, _ = ensemble.fit(ts.ensemble, ts.real.data, ts.real.size, k_fit)
+    def refit(ts: MBTrainState, key: jax.Array) -> MBTrainState:
+        ens_state, _ = ensemble.fit(ts.ensemble, ts.real.data, ts.real.size, key)
+        return ts.replace(ensemble=ens_state)
+
+    def imagine(ts: MBTrainState, key: jax.Array) -> tuple[MBTrainState, jax.Array]:
+        k_start, k_roll = jax.random.split(key)
+        ens_state = ts.ensemble
         idx = jax.random.randint(k_start, (slots, per_slot), 0, jnp.maximum(ts.real.size, 1))
         start = ts.real.data.obs[idx]
         rollouts, alive = imagination.imagine(
@@ -157,8 +161,11 @@ def make_mb_trainer(config: TrainConfig):
         )  # fmt: skip
         model_buffer = imagination.insert_rollouts(ts.model_buffer, rollouts, alive)
         count = jnp.sum(alive).astype(jnp.int32)
-        ts = ts.replace(ensemble=ens_state, model_buffer=model_buffer, imagined=ts.imagined + count)
-        return ts, count
+        return ts.replace(model_buffer=model_buffer, imagined=ts.imagined + count), count
+
+    def refit_and_imagine(ts: MBTrainState, key: jax.Array) -> tuple[MBTrainState, jax.Array]:
+        k_fit, k_imagine = jax.random.split(key)
+        return imagine(refit(ts, k_fit), k_imagine)
 
     def mixed(model_part: Transitions, real_part: Transitions) -> Transitions:
         return jax.tree.map(lambda a, b: jnp.concatenate([a, b], 0), model_part, real_part)
@@ -278,4 +285,5 @@ def make_mb_trainer(config: TrainConfig):
         train_chunk=jax.jit(train_chunk, donate_argnums=0),
         evaluate=evaluate,
         steps_per_chunk=config.eval_every,
+        parts={"refit": refit, "imagine": imagine, "agent_update": agent_update},
     )

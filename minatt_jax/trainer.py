@@ -59,6 +59,8 @@ class Trainer(NamedTuple):
     train_chunk: Callable[[TrainState], tuple[TrainState, dict]]
     evaluate: Callable[[TrainState, jax.Array, envs.Task], EvalResult]
     steps_per_chunk: int
+    # Pieces of one iteration, (state, key) -> state or (state, out), for timing breakdowns.
+    parts: dict[str, Callable] | None = None
 
 
 def make_trainer(config: TrainConfig) -> Trainer:
