@@ -296,6 +296,10 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
             print(f"  {key:18s} {record[key]:12.4f} +- {record[key + '_std']:.4f}")
         print(f"  {'env_steps_per_s':18s} {record['env_steps_per_s']:12.1f}")
         print(f"  {'updates_per_s':18s} {record['updates_per_s']:12.1f}")
+        if "model_holdout_mse" in record:
+            print(f"  {'model_holdout_mse':18s} {record['model_holdout_mse']:12.4f} "
+                  f"(elites {record['model_elites']})")  # fmt: skip
+            print(f"  {'imagined_per_s':18s} {record['imagined_per_s']:12.1f}")
     print(f"\nfiles in {out}: config.json, metrics.jsonl, tensorboard/, checkpoints/")
     return record
 

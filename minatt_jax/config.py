@@ -191,13 +191,10 @@ PRESETS: dict[str, TrainConfig] = {
         ),
     ),
     # What runs in minutes (sac) to under an hour (mbmpo, 50K hopper steps) on 2 CPU cores.
-    # Reduced from the paper for the model-based loop, and why (measured per piece here):
-    # - model fits are capped at 10 "epochs" of at most 20 minibatches, warm-started from the last
-    #   fit (one 7 x 4x200 minibatch takes ~13 ms; full-data epochs with early stopping would
-    #   take 20-40 s per fit, 1-2 h over the 180 fits of a 50K run);
-    # - 1 agent update per env step instead of 2 (a second-order meta step on 5 tasks takes
-    #   ~20 ms, 4x a SAC update: 2 per step alone would take 30 min).
-    # Everything else (ensemble, rollouts, buffers, schedule, batch mix) keeps the paper's values.
+    # Reduced from the paper for the model-based loop, and why (measured, meta_step.py): model
+    # fits are capped at 10 "epochs" of at most 20 minibatches, warm-started from the last fit
+    # (one 7 x 4x200 minibatch takes 13-19 ms; full-data epochs with early stopping take 20-40 s
+    # per fit, 1-2 h over the 180 fits of a 50K run). Everything else keeps the paper's values.
     "cpu": TrainConfig(
         preset="cpu",
         total_steps=50_000,
@@ -207,7 +204,6 @@ PRESETS: dict[str, TrainConfig] = {
         eval_every=5_000,
         eval_episodes=5,
         model=ModelConfig(max_epochs=10, max_batches_per_epoch=20),
-        mb=MBConfig(agent_updates_per_step=1),
     ),
     # The paper's appendix values (200K steps, 10 evaluation episodes).
     "paper": TrainConfig(
