@@ -2,12 +2,12 @@
 
     python experiments/hopper_model_based.py [--steps 50000] [--seeds 0 1 2] [--collect-only]
 
-Runs go one after another (seed 0 of every variant first), each a normal run directory under
-``--runs``; a killed invocation resumes every unfinished run from its last checkpoint when started
-again. After each run (and with ``--collect-only``, from whatever the run directories hold) the
-evaluation records at 10K, 25K and 50K steps are written to
-``experiments/results/hopper_model_based.json`` and a markdown table (mean +- std over the seeds
-that reached the step, n given).
+Runs go one after another (seed 0 of every variant first; SAC, which takes minutes, first),
+each a normal run directory under ``--runs``; a killed invocation resumes every unfinished run
+from its last checkpoint when started again. After each run (and with ``--collect-only``, from
+whatever the run directories hold) the evaluation records at 10K, 25K and 50K steps are written
+to ``experiments/results/hopper_model_based.json`` and a markdown table (mean +- std over the
+seeds that reached the step, n given).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from minatt_jax import runner
 from minatt_jax.config import PRESETS, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results")
-VARIANTS = (("mbmpo", 1.0), ("mbmpo", 0.0), ("sac", 0.0))
+VARIANTS = (("sac", 0.0), ("mbmpo", 1.0), ("mbmpo", 0.0))  # run order: the cheap one first
 STEPS = (10_000, 25_000, 50_000)
 COLUMNS = ("return", "feedback_norm", "energy", "feedforward_norm")
 
