@@ -66,3 +66,46 @@ def _key(index: int) -> str:
 def _payload(state: Any) -> dict[str, Any]:
     """The non-empty leaves of ``state`` keyed by position."""
     return {_key(i): x for i, x in enumerate(jax.tree.leaves(state)) if x.size > 0}
+
+
+def save_policy_snapshot(run_dir: str, step: int, actor_params: Any, normalizer: Any) -> str:
+    """Saves the policy alone (actor parameters and observation normalizer) as a small .npz.
+
+    Full checkpoints keep only the latest two (a model-based state with its buffers is hundreds
+    of MB); these snapshots, one per evaluation, let analyses look at the policy at any step.
+    """
+    import numpy as np
+
+    directory = os.path.join(run_dir, "policy_snapshots")
+    os.makedirs(directory, exist_ok=True)
+    leaves = jax.tree.leaves((actor_params, normalizer))
+    path = os.path.join(directory, f"step_{step:09d}.npz")
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **{_key(i): np.asarray(x) for i, x in enumerate(leaves)})
+    os.replace(tmp, path)
+    return path
+
+
+def snapshot_steps(run_dir: str) -> list[int]:
+    """The steps that have a policy snapshot, ascending."""
+    directory = os.path.join(run_dir, "policy_snapshots")
+    if not os.path.isdir(directory):
+        return []
+    return sorted(int(f[5:14]) for f in os.listdir(directory)
+                  if f.startswith("step_") and f.endswith(".npz") and ".tmp" not in f)  # fmt: skip
+
+
+def load_policy_snapshot(run_dir: str, step: int, like: tuple[Any, Any]) -> tuple[Any, Any]:
+    """(actor_params, normalizer) of snapshot ``step``, in the structure of ``like``."""
+    import numpy as np
+
+    path = os.path.join(run_dir, "policy_snapshots", f"step_{step:09d}.npz")
+    leaves, treedef = jax.tree.flatten(like)
+    try:
+        with np.load(path) as f:
+            loaded = [f[_key(i)] for i in range(len(leaves))]
+    except (OSError, KeyError, ValueError) as e:
+        raise CheckpointError(f"policy snapshot {path} is missing or corrupt ({e})") from None
+    if any(a.shape != b.shape for a, b in zip(loaded, leaves, strict=True)):
+        raise CheckpointError(f"policy snapshot {path} does not match this configuration")
+    return jax.tree.unflatten(treedef, [jax.numpy.asarray(x) for x in loaded])

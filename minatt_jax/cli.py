@@ -1,4 +1,4 @@
-"""The ``minatt-jax`` command line: ``envs``, ``rollout``, ``train`` and ``evaluate``.
+"""The ``minatt-jax`` command line: ``envs``, ``rollout``, ``train``, ``evaluate``, ``meta-test``.
 
 Every user error (unknown name, invalid number, unwritable output) prints one line starting with
 ``minatt-jax: error:`` and exits with status 2, without a traceback.
@@ -104,8 +104,33 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument("--updates-per-step", type=_positive_int, default=None)
     p_train.add_argument("--inner-lr", type=_non_negative_float, default=None, help="mbmpo beta")
     p_train.add_argument("--first-order", action="store_true", default=None, help="FO-MAML")
+    p_train.add_argument("--inner", choices=("sac", "vpg"), default=None, help="mbmpo inner step")
+    p_train.add_argument("--outer", choices=("sac", "trpo"), default=None, help="mbmpo outer step")
     p_train.add_argument("--out", default=None, help="run directory (default runs/<name>)")
     p_train.add_argument("--resume", action="store_true", help="continue the run in --out")
+
+    p_meta = sub.add_parser("meta-test", help="adapt a trained run to each task of a variant")
+    p_meta.add_argument("run_dir")
+    p_meta.add_argument("--variant", required=True, help="mass, crippled, slope, ...")
+    p_meta.add_argument("--shots", type=_positive_int, default=1, help="real episodes per task")
+    p_meta.add_argument("--adapt-steps", type=_non_negative_int, default=10)
+    p_meta.add_argument("--episodes", type=_positive_int, default=5, help="per evaluation")
+    p_meta.add_argument("--updates-per-step", type=_positive_int, default=20, help="sac runs")
+    p_meta.add_argument("--seed", type=_non_negative_int, default=0)
+    p_meta.add_argument("--out", default=None, help="directory for meta_test_<variant>.json/png")
+    p_meta.add_argument("--json", action="store_true", help="print the result as JSON")
+
+    p_an = sub.add_parser("analyze", help="figures, tables and report.html for runs of one env")
+    p_an.add_argument("run_dirs", nargs="+")
+    p_an.add_argument("--out", required=True, help="report directory")
+    p_an.add_argument("--episodes", type=_positive_int, default=5, help="rollouts per run")
+    p_an.add_argument("--bins", type=_positive_int, default=20, help="heatmap bins per axis")
+    p_an.add_argument("--grid", type=_positive_int, default=9, help="failure grid size per axis")
+    p_an.add_argument("--grid-rollouts", type=_positive_int, default=20)
+    p_an.add_argument("--grid-steps", type=_positive_int, default=100)
+    p_an.add_argument("--maturation-steps", type=_positive_int, nargs="+",
+                      default=[10_000, 100_000, 200_000])  # fmt: skip
+    p_an.add_argument("--perturbation", default="crippled", help="task set for K(t)/v(t)")
 
     p_eval = sub.add_parser("evaluate", help="evaluate a run's latest checkpoint")
     p_eval.add_argument("run_dir")
@@ -217,7 +242,8 @@ _TRAIN_FLAGS = {
     "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac_normalize_obs",
     "ensemble_size": "model_ensemble_size", "elites": "model_num_elites",
     "rollout_batch": "mb_rollout_batch", "inner_lr": "mb_meta_inner_lr",
-    "first_order": "mb_meta_first_order",
+    "first_order": "mb_meta_first_order", "inner": "mb_meta_inner",
+    "outer": "mb_meta_outer",
 }  # fmt: skip
 
 
@@ -300,7 +326,8 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
             print(f"  {'model_holdout_mse':18s} {record['model_holdout_mse']:12.4f} "
                   f"(elites {record['model_elites']})")  # fmt: skip
             print(f"  {'imagined_per_s':18s} {record['imagined_per_s']:12.1f}")
-    print(f"\nfiles in {out}: config.json, metrics.jsonl, tensorboard/, checkpoints/")
+    print(f"\nfiles in {out}: config.json, metrics.jsonl, tensorboard/, checkpoints/, "
+          "policy_snapshots/")  # fmt: skip
     return record
 
 
@@ -322,6 +349,60 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     return metrics
 
 
+def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import runner
+    from minatt_jax.meta_test import MetaTestConfig, meta_test
+
+    settings = MetaTestConfig(
+        shots=args.shots, adapt_steps=args.adapt_steps, episodes=args.episodes,
+        updates_per_step=args.updates_per_step, seed=args.seed,
+    )  # fmt: skip
+    log = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
+    try:
+        result = meta_test(args.run_dir, args.variant, settings, log=log)
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    out = args.out or args.run_dir
+    path = os.path.join(out, f"meta_test_{args.variant}.json")
+    _write_json_atomic(path, result)
+    png = os.path.join(out, f"meta_test_{args.variant}.png")
+    from minatt_jax.plots import plot_meta_test
+
+    plot_meta_test(result, png)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        mean = result["mean_over_tasks"]
+        print(f"mean over {len(result['tasks'])} tasks, before -> after {settings.adapt_steps} "
+              "adaptation steps:")  # fmt: skip
+        for key, v in mean.items():
+            print(f"  {key:18s} {v['before']:12.4f} -> {v['after']:12.4f}")
+        print(f"wrote {path} and {png}")
+    return result
+
+
+def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import runner
+    from minatt_jax.report import AnalyzeConfig, analyze
+
+    settings = AnalyzeConfig(
+        episodes=args.episodes, bins=args.bins, grid=args.grid, grid_rollouts=args.grid_rollouts,
+        grid_steps=args.grid_steps, maturation_steps=tuple(args.maturation_steps),
+        perturbation=args.perturbation,
+    )  # fmt: skip
+    try:
+        os.makedirs(args.out, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot create {args.out}: {e.strerror or e}") from None
+    try:
+        result = analyze(args.run_dirs, args.out, settings, log=lambda m: print(m, flush=True))
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    print(f"wrote {os.path.join(args.out, 'report.html')} with: " + ", ".join(result["figures"])
+          + ", tables.md, tables.json")  # fmt: skip
+    return result
+
+
 def _write_json_atomic(path: str, obj: Any) -> None:
     """Writes JSON atomically; an unwritable path is a user error."""
     from minatt_jax.runner import write_json_atomic
@@ -340,6 +421,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "rollout": _cmd_rollout,
         "train": _cmd_train,
         "evaluate": _cmd_evaluate,
+        "meta-test": _cmd_meta_test,
+        "analyze": _cmd_analyze,
     }
     try:
         commands[args.command](args)

@@ -30,6 +30,10 @@ class MBConfig:
       obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
       meta_inner_lr: beta of the MAML inner step theta' = theta - beta grad L_i(theta).
       meta_first_order: drop the inner gradient's dependence on theta (first-order MAML).
+      meta_inner: inner-step objective, "sac" (the SAC actor loss) or "vpg" (REINFORCE on
+        imagined trajectories of ``vpg_horizon`` steps from ``task batch`` start states).
+      meta_outer: outer step, "sac" (Adam on the meta objective) or "trpo" (a trust-region step
+        on it with KL <= ``trpo_max_kl``).
     """
 
     epoch_length: int = 1000
@@ -42,6 +46,10 @@ class MBConfig:
     obs_clip: float = 100.0
     meta_inner_lr: float = 1e-3
     meta_first_order: bool = False
+    meta_inner: str = "sac"
+    vpg_horizon: int = 10
+    meta_outer: str = "sac"
+    trpo_max_kl: float = 0.01
 
     def __post_init__(self) -> None:
         for name in ("epoch_length", "model_train_every", "rollout_batch", "model_buffer_size",
@@ -54,6 +62,14 @@ class MBConfig:
                              f"{self.rollout_schedule}")  # fmt: skip
         if not 0.0 <= self.real_ratio <= 1.0:
             raise ValueError(f"mb real_ratio must be in [0, 1], got {self.real_ratio}")
+        if self.meta_inner not in ("sac", "vpg"):
+            raise ValueError(f"mb meta_inner must be 'sac' or 'vpg', got {self.meta_inner!r}")
+        if self.meta_outer not in ("sac", "trpo"):
+            raise ValueError(f"mb meta_outer must be 'sac' or 'trpo', got {self.meta_outer!r}")
+        if self.trpo_max_kl <= 0:
+            raise ValueError(f"mb trpo_max_kl must be positive, got {self.trpo_max_kl}")
+        if self.vpg_horizon <= 0:
+            raise ValueError(f"mb vpg_horizon must be positive, got {self.vpg_horizon}")
         if self.meta_inner_lr < 0:
             raise ValueError(f"mb meta_inner_lr must be >= 0, got {self.meta_inner_lr}")
 

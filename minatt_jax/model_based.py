@@ -35,7 +35,7 @@ from minatt_jax.config import TrainConfig
 from minatt_jax.dynamics_ensemble import EnsembleState, make_ensemble
 from minatt_jax.envs.termination import TERMINATION_FNS
 from minatt_jax.evaluation import EvalResult, make_evaluator
-from minatt_jax.maml import make_meta_step
+from minatt_jax.maml import Trajectories, make_meta_step
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import SACState, make_sac, metric_names
 
@@ -59,8 +59,9 @@ class MBTrainState:
     imagined: jax.Array  # total imagined transitions stored
 
 
-def meta_metric_names(base: tuple[str, ...]) -> tuple[str, ...]:
-    return (*base, "meta_inner_loss", "meta_outer_loss")
+def meta_metric_names(base: tuple[str, ...], outer: str = "sac") -> tuple[str, ...]:
+    extra = ("trpo_accepted", "trpo_kl") if outer == "trpo" else ()
+    return (*base, "meta_inner_loss", "meta_outer_loss", *extra)
 
 
 def make_mb_trainer(config: TrainConfig):
@@ -78,7 +79,10 @@ def make_mb_trainer(config: TrainConfig):
         ma_config = dataclasses.replace(ma_config, temporal_dt=env.dt)
     sac = make_sac(obs_dim, act_dim, config.sac, ma_config, config.caps)
     ensemble = make_ensemble(obs_dim, act_dim, mcfg)
-    meta_step = make_meta_step(sac, mb.meta_inner_lr, mb.meta_first_order)
+    meta_step = make_meta_step(
+        sac, mb.meta_inner_lr, mb.meta_first_order, mb.meta_inner, config.sac.gamma,
+        outer=mb.meta_outer, max_kl=mb.trpo_max_kl,
+    )  # fmt: skip
     termination = TERMINATION_FNS[config.env]
     slots = mcfg.num_elites
     per_slot = mb.rollout_batch // slots
@@ -94,7 +98,7 @@ def make_mb_trainer(config: TrainConfig):
     t_model = task_batch_size - t_real
     names = metric_names(ma_config, config.caps)
     if meta:
-        names = meta_metric_names(names)
+        names = meta_metric_names(names, mb.meta_outer)
     iterations = config.eval_every
 
     def sample_task_reset(key: jax.Array) -> EnvState:
@@ -188,7 +192,20 @@ def make_mb_trainer(config: TrainConfig):
             )
 
         task_keys = jax.random.split(k_tasks, 2 * slots).reshape(2, slots, -1)
-        supports = jax.vmap(task_batch)(jnp.arange(slots), task_keys[0])
+        if mb.meta_inner == "vpg":
+            # Fresh trajectories of the current policy in each task's model (REINFORCE data).
+            k_start, k_roll = jax.random.split(task_keys[0, 0])
+            idx = jax.random.randint(
+                k_start, (slots, task_batch_size), 0, jnp.maximum(ts.real.size, 1)
+            )
+            data, alive = imagination.imagine(
+                ensemble, ts.ensemble, ts.ensemble.elites, sac.sample, ts.agent.actor_params,
+                termination, ts.real.data.obs[idx], jnp.asarray(mb.vpg_horizon), mb.vpg_horizon,
+                k_roll, mb.obs_clip,
+            )  # fmt: skip
+            supports = Trajectories(data=data, alive=alive)
+        else:
+            supports = jax.vmap(task_batch)(jnp.arange(slots), task_keys[0])
         queries = jax.vmap(task_batch)(jnp.arange(slots), task_keys[1])
         agent, adapted, metrics = meta_step.update(
             ts.agent, critic_batch, supports, queries, k_update

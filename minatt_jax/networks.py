@@ -72,3 +72,13 @@ def sample_tanh_gaussian(
     # log(1 - tanh(x)^2) written stably: 2 * (log 2 - x - softplus(-2x)).
     log_prob = log_prob - 2.0 * (jnp.log(2.0) - pre - jax.nn.softplus(-2.0 * pre))
     return action, jnp.sum(log_prob, axis=-1)
+
+
+def tanh_gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
+    """log pi(action) of a tanh-squashed Gaussian (summed over actions); action in (-1, 1)."""
+    a = jnp.clip(action, -1.0 + 1e-6, 1.0 - 1e-6)
+    pre = jnp.arctanh(a)
+    eps = (pre - mean) * jnp.exp(-log_std)
+    log_prob = -0.5 * (eps**2 + 2 * log_std + jnp.log(2 * jnp.pi))
+    log_prob = log_prob - 2.0 * (jnp.log(2.0) - pre - jax.nn.softplus(-2.0 * pre))
+    return jnp.sum(log_prob, axis=-1)

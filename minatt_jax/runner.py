@@ -175,6 +175,7 @@ def train(
                     writer.add_scalar(k, v, step)
             writer.flush()
         checkpoint.save(run_dir, step, state)
+        checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params, state.normalizer)
         log(
             f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
             f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "

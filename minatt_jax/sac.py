@@ -18,7 +18,12 @@ from flax import struct
 
 from minatt_jax import min_attention as ma
 from minatt_jax.config import SACConfig
-from minatt_jax.networks import Actor, TwinCritic, sample_tanh_gaussian
+from minatt_jax.networks import (
+    Actor,
+    TwinCritic,
+    sample_tanh_gaussian,
+    tanh_gaussian_log_prob,
+)
 from minatt_jax.replay import Transitions
 
 
@@ -48,6 +53,9 @@ class SAC(NamedTuple):
     critic_step: Callable[[SACState, Transitions, jax.Array], tuple[SACState, dict]]
     actor_loss: Callable[..., tuple[jax.Array, tuple[dict, jax.Array]]]
     finish_actor_step: Callable[[SACState, Any, jax.Array], SACState]
+    log_prob: Callable[[Any, jax.Array, jax.Array], jax.Array]  # (params, obs, action)
+    dist: Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]  # pre-tanh (mean, log_std)
+    ma_config: ma.MAConfig
 
 
 def make_sac(
@@ -73,6 +81,10 @@ def make_sac(
     def sample(params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
         mean, log_std = actor.apply(params, obs)
         return sample_tanh_gaussian(key, mean, log_std)[0]
+
+    def log_prob(params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
+        mean, log_std = actor.apply(params, obs)
+        return tanh_gaussian_log_prob(mean, log_std, action)
 
     def init(key: jax.Array) -> SACState:
         k_actor, k_critic = jax.random.split(key)
@@ -146,10 +158,16 @@ def make_sac(
         critic_params = optax.apply_updates(state.critic_params, c_updates)
         return state.replace(critic_params=critic_params, critic_opt=critic_opt), c_metrics
 
-    def finish_actor_step(state: SACState, a_grads: Any, mean_logp: jax.Array) -> SACState:
-        """Applies actor gradients, then the entropy-coefficient and target-critic updates."""
-        a_updates, actor_opt = actor_tx.update(a_grads, state.actor_opt, state.actor_params)
-        actor_params = optax.apply_updates(state.actor_params, a_updates)
+    def finish_actor_step(
+        state: SACState, a_grads: Any, mean_logp: jax.Array, new_actor_params: Any = None
+    ) -> SACState:
+        """Applies actor gradients (Adam), or sets ``new_actor_params`` when given (a step made
+        elsewhere, e.g. TRPO), then the entropy-coefficient and target-critic updates."""
+        if new_actor_params is None:
+            a_updates, actor_opt = actor_tx.update(a_grads, state.actor_opt, state.actor_params)
+            actor_params = optax.apply_updates(state.actor_params, a_updates)
+        else:
+            actor_params, actor_opt = new_actor_params, state.actor_opt
 
         def entropy_loss(log_ent):
             return -log_ent * jax.lax.stop_gradient(mean_logp + target_entropy)
@@ -190,6 +208,9 @@ def make_sac(
         critic_step=critic_step,
         actor_loss=actor_loss,
         finish_actor_step=finish_actor_step,
+        log_prob=log_prob,
+        dist=lambda params, obs: actor.apply(params, obs),
+        ma_config=ma_config,
     )
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from minatt_jax.config import SACConfig
-from minatt_jax.maml import make_meta_step
+from minatt_jax.maml import Trajectories, make_meta_step
 from minatt_jax.min_attention import MAConfig
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import make_sac
@@ -15,11 +16,11 @@ from minatt_jax.sac import make_sac
 OBS, ACT, TASKS, BATCH = 3, 2, 2, 6
 
 
-def _setup(inner_lr, first_order):
+def _setup(inner_lr, first_order, inner="sac"):
     sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
     agent = sac.init(jax.random.PRNGKey(0))
     agent = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent)
-    meta = make_meta_step(sac, inner_lr, first_order)
+    meta = make_meta_step(sac, inner_lr, first_order, inner=inner)
     rng = np.random.default_rng(0)
 
     def batch(shape):
@@ -31,7 +32,11 @@ def _setup(inner_lr, first_order):
             terminal=jnp.zeros(shape),
         )
 
-    return sac, agent, meta, batch((TASKS, BATCH)), batch((TASKS, BATCH))
+    supports = batch((TASKS, BATCH))
+    if inner == "vpg":  # trajectories (tasks, steps, n): 4 steps, the last one dead
+        data = batch((TASKS, 4, BATCH))
+        supports = Trajectories(data, jnp.ones((TASKS, 4, BATCH)).at[:, 3, ::2].set(0.0))
+    return sac, agent, meta, supports, batch((TASKS, BATCH))
 
 
 def _task(tree, i):
@@ -42,10 +47,11 @@ def _flat(tree):
     return jnp.concatenate([x.ravel() for x in jax.tree.leaves(tree)])
 
 
-def test_meta_gradient_matches_finite_difference_and_first_order_differs():
+@pytest.mark.parametrize("inner", ["sac", "vpg"])
+def test_meta_gradient_matches_finite_difference_and_first_order_differs(inner):
     with jax.enable_x64(True):
         key = jax.random.PRNGKey(3)
-        sac, agent, meta, supports, queries = _setup(inner_lr=0.3, first_order=False)
+        sac, agent, meta, supports, queries = _setup(0.3, False, inner)
 
         def objective(params):
             return meta.meta_loss(params, agent, supports, queries, key)[0]
@@ -63,7 +69,7 @@ def test_meta_gradient_matches_finite_difference_and_first_order_differs():
         np.testing.assert_allclose(float(analytic), float(fd), rtol=1e-5)
 
         # First order: the mean of the tasks' gradients at their adapted parameters.
-        _, _, fo_meta, _, _ = _setup(inner_lr=0.3, first_order=True)
+        _, _, fo_meta, _, _ = _setup(0.3, True, inner)
         fo_grad = jax.grad(lambda p: fo_meta.meta_loss(p, agent, supports, queries, key)[0])(
             agent.actor_params
         )
@@ -93,3 +99,48 @@ def test_zero_inner_step_is_plain_sac_actor_gradient():
         ]  # fmt: skip
         np.testing.assert_allclose(float(loss), float(np.mean(plain)), rtol=1e-10)
         assert float(aux["meta_outer_loss"]) == float(loss)
+
+
+def test_vpg_inner_step_raises_the_imagined_return():
+    """A one-step bandit, reward = first action: the adapted policy's mean action rises."""
+    sac = make_sac(OBS, ACT, SACConfig(hidden=(16, 16)), MAConfig(alpha=0.0))
+    agent = sac.init(jax.random.PRNGKey(0))
+    meta = make_meta_step(sac, 0.05, inner="vpg")
+    obs = jax.random.normal(jax.random.PRNGKey(1), (1, 512, OBS))
+    action = jax.vmap(sac.sample, in_axes=(None, 0, 0))(
+        agent.actor_params, obs, jax.random.split(jax.random.PRNGKey(2), 1)
+    )
+    data = Transitions(obs=obs, action=action, reward=action[..., 0], next_obs=obs,
+                       terminal=jnp.zeros((1, 512)))  # fmt: skip
+    adapted, _ = meta.adapt(agent.actor_params, agent, Trajectories(data, jnp.ones((1, 512))),
+                            jax.random.PRNGKey(3))  # fmt: skip
+    before = jnp.mean(sac.control(agent.actor_params, obs[0])[:, 0])
+    after = jnp.mean(sac.control(adapted, obs[0])[:, 0])
+    other_before = jnp.mean(sac.control(agent.actor_params, obs[0])[:, 1])
+    other_after = jnp.mean(sac.control(adapted, obs[0])[:, 1])
+    assert float(after - before) > 0.02
+    assert abs(float(other_after - other_before)) < 0.5 * float(after - before)
+
+
+def test_trpo_outer_step_stays_in_the_trust_region():
+    sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
+    agent = sac.init(jax.random.PRNGKey(0))
+    _, _, _, supports, queries = _setup(0.1, False)
+    supports, queries = jax.tree.map(lambda x: x.astype(jnp.float32), (supports, queries))
+    meta = make_meta_step(sac, 0.1, outer="trpo", max_kl=0.005)
+    critic_batch = _task(queries, 0)
+    key = jax.random.PRNGKey(5)
+    before = meta.meta_loss(agent.actor_params, agent, supports, queries, jax.random.split(key)[1])
+    new_agent, _, metrics = jax.jit(meta.update)(agent, critic_batch, supports, queries, key)
+    assert float(metrics["trpo_accepted"]) == 1.0
+    assert 0 < float(metrics["trpo_kl"]) <= 0.005 * 1.001
+    # The actor moved without Adam (its optimizer state is untouched) and the objective fell
+    # (same critic as the line search saw: the critic step comes first).
+    assert _flat(new_agent.actor_params).shape == _flat(agent.actor_params).shape
+    assert float(jnp.max(jnp.abs(_flat(new_agent.actor_params) - _flat(agent.actor_params)))) > 0
+    moved = agent.replace(critic_params=new_agent.critic_params)
+    k_actor = jax.random.split(key)[1]
+    old_obj = meta.meta_loss(agent.actor_params, moved, supports, queries, k_actor)[0]
+    new_obj = meta.meta_loss(new_agent.actor_params, moved, supports, queries, k_actor)[0]
+    assert float(new_obj) < float(old_obj)
+    del before

@@ -14,9 +14,12 @@ from minatt_jax.config import PRESETS, with_overrides
 from minatt_jax.trainer import make_trainer
 
 
-@pytest.mark.parametrize("algo", ["mbpo", "mbmpo"])
+@pytest.mark.parametrize("algo", ["mbpo", "mbmpo", "mbmpo-vpg-trpo"])
 def test_model_based_chunk_compiles_once(algo):
-    config = with_overrides(PRESETS["smoke"], algo=algo, task_set="train", ma_alpha=1.0)
+    inner, outer = ("vpg", "trpo") if algo.endswith("trpo") else ("sac", "sac")
+    algo = algo.split("-")[0]
+    config = with_overrides(PRESETS["smoke"], algo=algo, task_set="train", ma_alpha=1.0,
+                            mb_meta_inner=inner, mb_meta_outer=outer)  # fmt: skip
     trainer = make_trainer(config)
     state = trainer.init(jax.random.PRNGKey(0))
     fits, holdouts, tasks = [], [], set()
@@ -31,6 +34,9 @@ def test_model_based_chunk_compiles_once(algo):
     assert holdouts[-1] < holdouts[0]  # the model improves as data arrives
     assert np.isfinite(float(metrics["critic_loss"])) and float(metrics["updates"]) == 300
     assert float(metrics["imagined_transitions"]) > 0
+    if outer == "trpo":  # steps were taken, within the trust region
+        assert float(metrics["trpo_accepted"]) > 0.5
+        assert 0 < float(metrics["trpo_kl"]) <= config.mb.trpo_max_kl * 1.001
     if algo == "mbmpo":
         assert np.isfinite(float(metrics["meta_inner_loss"]))
         # The adapted policies differ from the meta policy.

@@ -1,0 +1,230 @@
+"""Meta-testing a trained run on out-of-distribution tasks: evaluate, adapt with K shots, repeat.
+
+For every task of a task set (mass, crippled, slope, ...):
+
+1. evaluate the trained policy (deterministic episodes on that task): step 0;
+2. collect ``shots`` real episodes on the task with the trained (stochastic) policy;
+3. ``adapt_steps`` times: one adaptation step, then evaluate again. An adaptation step is
+   * sac: ``updates_per_step`` SAC updates (actor, critics, entropy; MA included) on batches drawn
+     from the K collected episodes;
+   * mbpo / mbmpo: the dynamics ensemble is refitted once on the K episodes (starting from the
+     trained ensemble); each step imagines one-step transitions of the current policy in the
+     refitted model from collected states (one slot per elite) and applies the inner step
+     theta <- theta - beta grad L(theta) (the MAML inner step of ``maml``, beta = the run's
+     ``meta_inner_lr``) on each slot's imagined batch, averaged over slots.
+
+Every jitted function takes the task as data, so all tasks of a set run through one compiled
+program. Returns per task and per step: return, feedback norm, feedforward norm, energy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import minatt_jax.envs as envs
+from minatt_jax import checkpoint, imagination, replay, runner
+from minatt_jax import normalizer as obs_norm
+from minatt_jax.envs.termination import TERMINATION_FNS
+from minatt_jax.evaluation import make_evaluator, summarize
+from minatt_jax.maml import make_meta_step
+from minatt_jax.replay import Transitions
+from minatt_jax.trainer import make_trainer
+
+REPORTED = ("return", "feedback_norm", "feedforward_norm", "energy")
+
+
+@dataclasses.dataclass(frozen=True)
+class MetaTestConfig:
+    """Meta-test settings (the paper plots 10 adaptation steps)."""
+
+    shots: int = 1
+    adapt_steps: int = 10
+    episodes: int = 5
+    updates_per_step: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("shots", "episodes", "updates_per_step"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.adapt_steps < 0:
+            raise ValueError(f"adapt_steps must be >= 0, got {self.adapt_steps}")
+
+
+def _collector(env, sample, normalize: Callable, max_steps: int, shots: int):
+    """(params, norm, key, task) -> (Transitions (shots*max_steps,), valid mask)."""
+
+    def episode(params, norm, key, task):
+        k_reset, k_run = jax.random.split(key)
+        state = env.reset(k_reset, task)
+
+        def body(carry, k):
+            state, alive = carry
+            action = sample(params, normalize(norm, state.obs), k)
+            nxt = env.step(state, action)
+            tr = Transitions(obs=state.obs, action=action, reward=nxt.reward, next_obs=nxt.obs,
+                             terminal=nxt.done)  # fmt: skip
+            return (nxt, alive * (1.0 - nxt.done)), (tr, alive)
+
+        keys = jax.random.split(k_run, max_steps)
+        _, (data, alive) = jax.lax.scan(body, (state, jnp.ones(())), keys)
+        return data, alive
+
+    def collect(params, norm, key, task):
+        data, alive = jax.vmap(episode, in_axes=(None, None, 0, None))(
+            params, norm, jax.random.split(key, shots), task
+        )
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), data)
+        return flat, alive.reshape(-1)
+
+    return jax.jit(collect)
+
+
+def meta_test(
+    run_dir: str,
+    variant: str,
+    settings: MetaTestConfig,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Meta-tests the latest checkpoint of ``run_dir`` on every task of ``variant``."""
+    config = runner.load_config(run_dir)
+    try:
+        envs.check_task_set_name(variant)
+    except envs.UnknownNameError as e:
+        raise runner.RunError(str(e)) from None
+    trainer = make_trainer(config)
+    env, sac = trainer.env, trainer.sac
+    like = trainer.init(jax.random.PRNGKey(config.seed))
+    try:
+        step, state = checkpoint.restore(run_dir, like)
+    except checkpoint.CheckpointError as e:
+        raise runner.RunError(str(e)) from None
+    state = jax.device_put(state, jax.devices()[0])
+    tasks, labels = envs.task_list(env, variant)
+    norm_on = config.sac.normalize_obs
+    max_steps = config.max_episode_steps
+
+    def normalize(norm, obs):
+        return obs_norm.normalize(norm, obs, norm_on)
+
+    evaluator = make_evaluator(env, sac.control, max_steps, norm_on, settings.episodes)
+    collect = _collector(env, sac.sample, normalize, max_steps, settings.shots)
+    capacity = settings.shots * max_steps
+    batch = config.sac.batch_size
+    model_based = config.algo != "sac"
+
+    if not model_based:
+
+        @jax.jit
+        def adapt(agent, data, valid, key):
+            buffer = imagination.insert_masked(
+                replay.init_buffer(capacity, env.observation_size, env.action_size), data, valid
+            )
+
+            def one(agent, k):
+                k_batch, k_sac = jax.random.split(k)
+                b = replay.sample(buffer, k_batch, batch)
+                b = b.replace(obs=normalize(state.normalizer, b.obs),
+                              next_obs=normalize(state.normalizer, b.next_obs))  # fmt: skip
+                return sac.update(agent, b, k_sac)[0], None
+
+            keys = jax.random.split(key, settings.updates_per_step)
+            return jax.lax.scan(one, agent, keys)[0]
+
+    else:
+        from minatt_jax.dynamics_ensemble import make_ensemble
+
+        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
+        meta = make_meta_step(sac, config.mb.meta_inner_lr)
+        slots = config.model.num_elites
+        termination = TERMINATION_FNS[config.env]
+        per_slot = max(batch // slots, 16)
+
+        @jax.jit
+        def refit(ens_state, data, valid, key):
+            buffer = imagination.insert_masked(
+                replay.init_buffer(capacity, env.observation_size, env.action_size), data, valid
+            )
+            return ensemble.fit(ens_state, buffer.data, buffer.size, key)[0]
+
+        @jax.jit
+        def adapt(agent, ens_state, data, valid, key):
+            k_start, k_roll, k_inner = jax.random.split(key, 3)
+            count = jnp.maximum(jnp.sum(valid).astype(jnp.int32), 1)
+            order = jnp.argsort(valid <= 0, stable=True)
+            idx = order[jax.random.randint(k_start, (slots, per_slot), 0, count)]
+            rollouts, alive = imagination.imagine(
+                ensemble, ens_state, ens_state.elites, sac.sample, agent.actor_params,
+                termination, data.obs[idx], jnp.asarray(1), 1, k_roll, config.mb.obs_clip,
+            )  # fmt: skip
+            first = jax.tree.map(lambda x: x[:, 0], rollouts)  # (slots, per_slot): all taken
+
+            def inner(p, k):
+                adapted = jax.vmap(lambda s, kk: meta.adapt(p, agent, s, kk)[0])(
+                    first, jax.random.split(k, slots)
+                )
+                return jax.tree.map(lambda a: jnp.mean(a, axis=0), adapted)
+
+            del alive  # one step from real states: every transition is taken
+            return agent.replace(actor_params=inner(agent.actor_params, k_inner))
+
+    key = jax.random.PRNGKey(settings.seed)
+    rows = []
+    for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
+        k_task = jax.random.fold_in(key, t)
+        task_set = envs.stack_tasks([task])
+        agent = state.agent
+
+        def evaluate(agent, i, task_set=task_set, k_task=k_task):
+            result = evaluator(agent.actor_params, state.normalizer,
+                               jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
+            return summarize(jax.device_get(result), env.dt)
+
+        curve = [evaluate(agent, 0)]
+        data, valid = collect(agent.actor_params, state.normalizer,
+                              jax.random.fold_in(k_task, 1), task)  # fmt: skip
+        ens_state = None
+        if model_based and settings.adapt_steps > 0:
+            ens_state = refit(state.ensemble, data, valid, jax.random.fold_in(k_task, 2))
+        for i in range(1, settings.adapt_steps + 1):
+            k = jax.random.fold_in(k_task, 10 + i)
+            if model_based:
+                agent = adapt(agent, ens_state, data, valid, k)
+            else:
+                agent = adapt(agent, data, valid, k)
+            curve.append(evaluate(agent, i))
+        row = {
+            "task": label,
+            "shots": settings.shots,
+            "collected_transitions": int(np.sum(np.asarray(valid))),
+            **{f"{m}_curve": [c[m] for c in curve] for m in REPORTED},
+            **{f"{m}_std_curve": [c[f"{m}_std"] for c in curve] for m in REPORTED},
+        }
+        rows.append(row)
+        first, last = curve[0], curve[-1]
+        log(f"{label:40s} return {first['return']:9.2f} -> {last['return']:9.2f} | feedback "
+            f"{first['feedback_norm']:8.3f} -> {last['feedback_norm']:8.3f}")  # fmt: skip
+    summary = {
+        m: {
+            "before": float(np.mean([r[f"{m}_curve"][0] for r in rows])),
+            "after": float(np.mean([r[f"{m}_curve"][-1] for r in rows])),
+        }
+        for m in REPORTED
+    }
+    return {
+        "run_dir": run_dir,
+        "env": config.env,
+        "algo": config.algo,
+        "alpha": config.ma.alpha,
+        "step": step,
+        "variant": variant,
+        "settings": dataclasses.asdict(settings),
+        "tasks": rows,
+        "mean_over_tasks": summary,
+    }

@@ -1,0 +1,473 @@
+"""``minatt-jax analyze``: figures, tables and one self-contained report for runs of one env.
+
+Runs are grouped by their configuration (algorithm, alpha, MA mode); the seeds of a group are
+aggregated. For every group the report shows
+
+* ``heatmap_feedback.png`` / ``heatmap_feedforward.png``: binned means of ||du/dx||_F^2 and of
+  ||(u_t - u_{t-1})/dt||^2 over the states the deterministic policy visits (all seeds pooled), on
+  the paper's 2D projections for the environment, groups side by side on a shared color scale;
+* ``profiles.png``: return, feedback, feedforward and energy over training (``metrics.jsonl``),
+  mean and std band across seeds;
+* ``decomposition.png``: ||K(t)||_F and ||v(t)||_2 of u = K(t) x + v(t) along one rollout, on the
+  nominal task and on a perturbed one (first seed of each group);
+* ``failure_grid.png``: failure rate over (forward velocity, torso pitch rate) initial states,
+  per group and the difference first group - second group (``control_analysis.failed``);
+* ``maturation.png``: the feedback heatmap (first projection) from policy snapshots at chosen steps;
+* ``tables.md`` / ``tables.json``: meta-training rows (final evaluation) and meta-testing rows
+  (from ``meta_test_<variant>.json`` files in the runs), mean and std across seeds;
+* ``report.html``: all of it with the figures embedded (base64), readable offline.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import json
+import os
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import minatt_jax.envs as envs
+from minatt_jax import checkpoint, runner
+from minatt_jax import control_analysis as ca
+from minatt_jax import normalizer as obs_norm
+from minatt_jax.config import TrainConfig
+from minatt_jax.plots import _pyplot, save_figure
+from minatt_jax.trainer import make_trainer
+
+PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
+FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
+           "decomposition.png", "failure_grid.png", "maturation.png")  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class AnalyzeConfig:
+    """Sizes of the analysis (defaults: the paper's failure grid; tests shrink them)."""
+
+    episodes: int = 5
+    bins: int = 20
+    grid: int = 9
+    grid_rollouts: int = 20
+    grid_steps: int = 100
+    maturation_steps: tuple[int, ...] = (10_000, 100_000, 200_000)
+    perturbation: str = "crippled"
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class Run:
+    run_dir: str
+    config: TrainConfig
+    group: str
+
+
+def group_label(config: TrainConfig) -> str:
+    label = f"{config.algo} alpha={config.ma.alpha:g}"
+    if config.ma.alpha > 0 and config.ma.mode != "full":
+        label += f" ({config.ma.mode})"
+    return label
+
+
+def load_runs(run_dirs: list[str]) -> list[Run]:
+    """Reads and checks the runs: one environment, each with a checkpoint."""
+    runs = [Run(d, runner.load_config(d), "") for d in run_dirs]
+    env_names = {r.config.env for r in runs}
+    if len(env_names) > 1:
+        listing = ", ".join(f"{r.run_dir} ({r.config.env})" for r in runs)
+        raise runner.RunError(
+            f"runs of different environments: {listing}; analyze one environment at a time"
+        )
+    for r in runs:
+        if checkpoint.latest_step(r.run_dir) is None:
+            raise runner.RunError(f"{r.run_dir} has no checkpoints: train it first")
+        r.group = group_label(r.config)
+    return runs
+
+
+class _GroupTools:
+    """Jitted functions for one group's shapes (built once, shared by its seeds)."""
+
+    def __init__(self, config: TrainConfig, settings: AnalyzeConfig) -> None:
+        self.trainer = make_trainer(config)
+        env, sac = self.trainer.env, self.trainer.sac
+        self.env, self.sac, self.config = env, sac, config
+        norm_on = config.sac.normalize_obs
+        steps = config.max_episode_steps
+        dt = env.dt
+
+        def rollout(params, norm, key, task):
+            state = env.reset(key, task)
+
+            def body(carry, _):
+                state, alive, u_prev = carry
+                x = obs_norm.normalize(norm, state.obs, norm_on)
+                u = sac.control(params, x)
+                jac = jax.jacfwd(lambda y: sac.control(params, y))(x)
+                nxt = env.step(state, u)
+                out = {
+                    "obs": state.obs,
+                    "policy_obs": x,
+                    "u": u,
+                    "alive": alive,
+                    "feedback": jnp.sum(jnp.square(jac)),
+                    "feedforward": jnp.sum(jnp.square((u - u_prev) / dt)),
+                }
+                return (nxt, alive * (1.0 - nxt.done), u), out
+
+            u0 = sac.control(params, obs_norm.normalize(norm, state.obs, norm_on))
+            _, out = jax.lax.scan(body, (state, jnp.ones(()), u0), None, length=steps)
+            return out
+
+        self.rollouts = jax.jit(jax.vmap(rollout, in_axes=(None, None, 0, None)))
+        self.grid = ca.make_failure_grid(
+            env,
+            lambda p, obs: sac.control(p[0], obs_norm.normalize(p[1], obs, norm_on)),
+            steps=settings.grid_steps,
+            rollouts=settings.grid_rollouts,
+        )
+        self.like = self.trainer.init(jax.random.PRNGKey(config.seed))
+
+    def restore(self, run_dir: str):
+        try:
+            step, state = checkpoint.restore(run_dir, self.like)
+        except checkpoint.CheckpointError as e:
+            raise runner.RunError(str(e)) from None
+        return step, state.agent.actor_params, state.normalizer
+
+
+def _visited(tools: _GroupTools, params, norm, key, episodes: int, task) -> dict[str, np.ndarray]:
+    out = jax.device_get(tools.rollouts(params, norm, jax.random.split(key, episodes), task))
+    alive = np.asarray(out["alive"]) > 0
+    first = np.zeros_like(alive)
+    first[:, 0] = True  # the feedforward term needs a previous action
+    return {
+        "obs": np.asarray(out["obs"])[alive],
+        "policy_obs": np.asarray(out["policy_obs"]),
+        "alive": alive,
+        "feedback": np.asarray(out["feedback"])[alive],
+        "feedforward": np.where(first, np.nan, np.asarray(out["feedforward"]))[alive],
+    }
+
+
+def _edges(values: list[np.ndarray], bins: int) -> np.ndarray:
+    v = np.concatenate([x[np.isfinite(x)] for x in values])
+    lo, hi = (float(np.min(v)), float(np.max(v))) if v.size else (0.0, 1.0)
+    if hi - lo < 1e-9:
+        lo, hi = lo - 0.5, hi + 0.5
+    return np.linspace(lo, hi, bins + 1)
+
+
+def _heatmap_figure(groups, states, metric, env, bins, path, title_suffix=""):
+    plt = _pyplot()
+    pairs = ca.projection_indices(env.obs_names, env.name)
+    names = list(groups)
+    fig, axes = plt.subplots(len(pairs), len(names), squeeze=False,
+                             figsize=(3.8 * len(names), 3.2 * len(pairs)))  # fmt: skip
+    out = {}
+    for row, (i, j) in enumerate(pairs):
+        xe = _edges([states[g]["obs"][:, i] for g in names], bins)
+        ye = _edges([states[g]["obs"][:, j] for g in names], bins)
+        means = {}
+        for g in names:
+            v = states[g][metric]
+            ok = np.isfinite(v)
+            means[g], _ = ca.binned_means(states[g]["obs"][ok, i], states[g]["obs"][ok, j],
+                                          v[ok], xe, ye)  # fmt: skip
+        finite = np.concatenate([m[np.isfinite(m)] for m in means.values()] or [np.zeros(1)])
+        vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+        for col, g in enumerate(names):
+            ax = axes[row][col]
+            extent = (xe[0], xe[-1], ye[0], ye[-1])
+            image = ax.imshow(means[g].T, origin="lower", aspect="auto", cmap="viridis",
+                              extent=extent, vmin=vmin, vmax=vmax)  # fmt: skip
+            ax.set_xlabel(env.obs_names[i])
+            ax.set_ylabel(env.obs_names[j])
+            ax.set_title(f"{g}{title_suffix}", fontsize=9)
+            out[f"{env.obs_names[i]}|{env.obs_names[j]}|{g}"] = means[g]
+        fig.colorbar(image, ax=list(axes[row]), shrink=0.8)
+    fig.suptitle(f"{metric} over visited states (binned mean, shared scale per row)", fontsize=10)
+    save_figure(fig, path)
+    return out
+
+
+def _mean_std_table(rows: list[dict], keys: tuple[str, ...]) -> dict[str, Any]:
+    out: dict[str, Any] = {"seeds": len(rows)}
+    for k in keys:
+        v = np.array([r[k] for r in rows if k in r], dtype=float)
+        out[k] = float(np.mean(v)) if v.size else None
+        out[f"{k}_std"] = float(np.std(v)) if v.size else None
+    return out
+
+
+def aggregate_tables(runs: list[Run]) -> dict[str, Any]:
+    """Meta-training rows (final evaluation) and meta-testing rows, mean/std across seeds."""
+    groups: dict[str, list[Run]] = {}
+    for r in runs:
+        groups.setdefault(r.group, []).append(r)
+    training, testing = [], []
+    for g, members in groups.items():
+        finals = [runner.read_metrics(r.run_dir)[-1] for r in members
+                  if runner.read_metrics(r.run_dir)]  # fmt: skip
+        training.append({"group": g, "step": min((f["step"] for f in finals), default=0),
+                         **_mean_std_table(finals, PROFILE_METRICS)})  # fmt: skip
+        variants = sorted({f[10:-5] for r in members for f in os.listdir(r.run_dir)
+                           if f.startswith("meta_test_") and f.endswith(".json")})  # fmt: skip
+        for variant in variants:
+            rows = []
+            for r in members:
+                path = os.path.join(r.run_dir, f"meta_test_{variant}.json")
+                if os.path.exists(path):
+                    with open(path) as f:
+                        mean = json.load(f)["mean_over_tasks"]
+                    rows.append(
+                        {k: v["after"] for k, v in mean.items()}
+                        | {f"{k}_before": v["before"] for k, v in mean.items()}
+                    )
+            stats = _mean_std_table(rows, (*PROFILE_METRICS, "return_before"))
+            testing.append({"group": g, "variant": variant, **stats})
+    return {"meta_training": training, "meta_testing": testing}
+
+
+def _fmt(row: dict, k: str) -> str:
+    if row.get(k) is None:
+        return "-"
+    return f"{row[k]:.4g} +- {row[k + '_std']:.2g}"
+
+
+def tables_markdown(tables: dict[str, Any]) -> str:
+    lines = ["## Meta-training (final evaluation)", "",
+             "| group | seeds | step | " + " | ".join(PROFILE_METRICS) + " |",
+             "|---" * (len(PROFILE_METRICS) + 3) + "|"]  # fmt: skip
+    for r in tables["meta_training"]:
+        lines.append(f"| {r['group']} | {r['seeds']} | {r['step']} | "
+                     + " | ".join(_fmt(r, k) for k in PROFILE_METRICS) + " |")  # fmt: skip
+    lines += ["", "## Meta-testing (after adaptation; return before it too)", "",
+              "| group | variant | seeds | return before | " + " | ".join(PROFILE_METRICS) + " |",
+              "|---" * (len(PROFILE_METRICS) + 4) + "|"]  # fmt: skip
+    for r in tables["meta_testing"]:
+        lines.append(f"| {r['group']} | {r['variant']} | {r['seeds']} | "
+                     f"{_fmt(r, 'return_before')} | "
+                     + " | ".join(_fmt(r, k) for k in PROFILE_METRICS) + " |")  # fmt: skip
+    if not tables["meta_testing"]:
+        lines.append("| (no meta_test_<variant>.json in these runs: run `minatt-jax meta-test`) |")
+    return "\n".join(lines) + "\n"
+
+
+def _profiles_figure(runs: list[Run], path: str) -> None:
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(PROFILE_METRICS), figsize=(4.2 * len(PROFILE_METRICS), 3.3))
+    groups: dict[str, list[Run]] = {}
+    for r in runs:
+        groups.setdefault(r.group, []).append(r)
+    for g, members in groups.items():
+        records = [runner.read_metrics(r.run_dir) for r in members]
+        steps = sorted(set.intersection(*[{x["step"] for x in rec} for rec in records]))
+        for ax, metric in zip(axes, PROFILE_METRICS, strict=True):
+            values = np.array([[next(x[metric] for x in rec if x["step"] == s) for s in steps]
+                               for rec in records])  # fmt: skip
+            mean, std = values.mean(0), values.std(0)
+            ax.plot(steps, mean, marker="o", ms=3, label=f"{g} ({len(members)} seeds)")
+            ax.fill_between(steps, mean - std, mean + std, alpha=0.2)
+    for ax, metric in zip(axes, PROFILE_METRICS, strict=True):
+        ax.set_title(metric)
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def analyze(
+    run_dirs: list[str],
+    out_dir: str,
+    settings: AnalyzeConfig = AnalyzeConfig(),
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Writes every figure, the tables and report.html for ``run_dirs`` into ``out_dir``."""
+    runs = load_runs(run_dirs)
+    env_name = runs[0].config.env
+    try:
+        envs.check_task_set_name(settings.perturbation)
+    except envs.UnknownNameError as e:
+        raise runner.RunError(str(e)) from None
+    os.makedirs(out_dir, exist_ok=True)
+    groups: dict[str, list[Run]] = {}
+    for r in runs:
+        groups.setdefault(r.group, []).append(r)
+    key = jax.random.PRNGKey(settings.seed)
+    tools: dict[str, _GroupTools] = {}
+    states: dict[str, dict[str, np.ndarray]] = {}
+    decomposition: dict[str, dict[str, np.ndarray]] = {}
+    grids: dict[str, np.ndarray] = {}
+    maturation: dict[str, dict[int, dict[str, np.ndarray]]] = {}
+    env = None
+    for g, members in groups.items():
+        log(f"analyzing {g}: {len(members)} run(s)")
+        t = tools[g] = _GroupTools(members[0].config, settings)
+        env = t.env
+        nominal = env.nominal_task()
+        perturbed = envs.task_list(env, settings.perturbation)[0][0]
+        pooled: list[dict[str, np.ndarray]] = []
+        grid_list = []
+        vx = jnp.linspace(-1.0, 4.0, settings.grid)
+        w = jnp.linspace(-4.0, 4.0, settings.grid)
+        for n, r in enumerate(members):
+            _, params, norm = t.restore(r.run_dir)
+            visited = _visited(t, params, norm, jax.random.fold_in(key, n), settings.episodes,
+                               nominal)  # fmt: skip
+            pooled.append(visited)
+            grid_list.append(np.asarray(t.grid((params, norm), vx, w, jax.random.fold_in(key, 7),
+                                               nominal)))  # fmt: skip
+            if n == 0:
+                decomposition[g] = {}
+                for name, task in (("nominal", nominal), (settings.perturbation, perturbed)):
+                    one = _visited(t, params, norm, jax.random.fold_in(key, 99), 1, task)
+                    alive = one["alive"][0]
+                    obs = jnp.asarray(one["policy_obs"][0][alive])
+                    decomposition[g][name] = jax.device_get(
+                        ca.decompose(t.sac.control, params, obs)
+                    )
+        states[g] = {k: np.concatenate([p[k] for p in pooled])
+                     for k in ("obs", "feedback", "feedforward")}  # fmt: skip
+        grids[g] = np.mean(grid_list, axis=0)
+        # Maturation: the snapshot of the first run nearest to each requested step.
+        available = checkpoint.snapshot_steps(members[0].run_dir)
+        maturation[g] = {}
+        like = (t.like.agent.actor_params, t.like.normalizer)
+        for want in settings.maturation_steps:
+            if not available:
+                break
+            step = min(available, key=lambda s, want=want: abs(s - want))
+            if step in maturation[g]:
+                continue
+            params, norm = checkpoint.load_policy_snapshot(members[0].run_dir, step, like)
+            v = _visited(t, params, norm, jax.random.fold_in(key, 5), settings.episodes, nominal)
+            maturation[g][step] = v
+
+    assert env is not None
+    figures = {}
+    heat = {}
+    for metric in ("feedback", "feedforward"):
+        path = os.path.join(out_dir, f"heatmap_{metric}.png")
+        heat[metric] = _heatmap_figure(groups, states, metric, env, settings.bins, path)
+        figures[f"heatmap_{metric}.png"] = f"{metric} heatmaps over the paper's projections"
+    _profiles_figure(runs, os.path.join(out_dir, "profiles.png"))
+    figures["profiles.png"] = "return, feedback, feedforward and energy over training"
+    _decomposition_figure(decomposition, env.dt, os.path.join(out_dir, "decomposition.png"))
+    figures["decomposition.png"] = "||K(t)||_F and ||v(t)|| of u = K(t)x + v(t) along a rollout"
+    _failure_figure(grids, np.asarray(vx), np.asarray(w), env_name,
+                    os.path.join(out_dir, "failure_grid.png"))  # fmt: skip
+    figures["failure_grid.png"] = "failure rate over initial forward velocity x pitch rate"
+    _maturation_figure(maturation, env, settings.bins, os.path.join(out_dir, "maturation.png"))
+    figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
+    tables = aggregate_tables(runs)
+    markdown = tables_markdown(tables)
+    with open(os.path.join(out_dir, "tables.md"), "w") as f:
+        f.write(markdown)
+    runner.write_json_atomic(os.path.join(out_dir, "tables.json"), tables)
+    _write_html(out_dir, figures, markdown, runs)
+    return {"out_dir": out_dir, "figures": list(figures), "groups": list(groups),
+            "tables": tables, "failure_rates": {g: grids[g].tolist() for g in grids}}  # fmt: skip
+
+
+def _decomposition_figure(decomposition, dt, path):
+    plt = _pyplot()
+    tasks = list(next(iter(decomposition.values())))
+    fig, axes = plt.subplots(len(tasks), 2, figsize=(10, 3.0 * len(tasks)), squeeze=False)
+    for row, task in enumerate(tasks):
+        for g, parts in decomposition.items():
+            d = parts[task]
+            t = np.arange(len(d["K_norm"])) * dt
+            axes[row][0].plot(t, d["K_norm"], label=g)
+            axes[row][1].plot(t, d["v_norm"], label=g)
+        axes[row][0].set_title(f"||K(t)||_F, {task}")
+        axes[row][1].set_title(f"||v(t)||_2, {task}")
+        for ax in axes[row]:
+            ax.set_xlabel("time (s)")
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    save_figure(fig, path)
+
+
+def _failure_figure(grids, vx, w, env_name, path):
+    plt = _pyplot()
+    names = list(grids)
+    panels = names + (["difference"] if len(names) >= 2 else [])
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.0 * len(panels), 3.4), squeeze=False)
+    extent = (vx[0], vx[-1], w[0], w[-1])
+    for ax, name in zip(axes[0], panels, strict=True):
+        if name == "difference":
+            data, cmap, lim = grids[names[0]] - grids[names[1]], "RdBu_r", (-1, 1)
+            title = f"{names[0]} - {names[1]}"
+        else:
+            data, cmap, lim, title = grids[name], "magma", (0, 1), name
+        image = ax.imshow(data.T, origin="lower", aspect="auto", extent=extent, cmap=cmap,
+                          vmin=lim[0], vmax=lim[1])  # fmt: skip
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("initial forward velocity")
+        ax.set_ylabel("initial pitch rate")
+        fig.colorbar(image, ax=ax, shrink=0.8)
+    criterion = ("torso z < -0.42 or |pitch| > 1.1" if env_name == "halfcheetah"
+                 else "the environment's termination")  # fmt: skip
+    fig.suptitle(f"failure rate ({criterion})", fontsize=10)
+    save_figure(fig, path)
+
+
+def _maturation_figure(maturation, env, bins, path):
+    plt = _pyplot()
+    i, j = ca.projection_indices(env.obs_names, env.name)[0]
+    names = list(maturation)
+    cols = max(1, max(len(v) for v in maturation.values()))
+    fig, axes = plt.subplots(len(names), cols, figsize=(3.6 * cols, 3.0 * len(names)),
+                             squeeze=False)  # fmt: skip
+    everything = [v["obs"] for m in maturation.values() for v in m.values()]
+    if not everything:
+        axes[0][0].text(0.5, 0.5, "no policy snapshots in these runs", ha="center")
+        save_figure(fig, path)
+        return
+    xe = _edges([o[:, i] for o in everything], bins)
+    ye = _edges([o[:, j] for o in everything], bins)
+    values = [ca.binned_means(v["obs"][:, i], v["obs"][:, j], v["feedback"], xe, ye)[0]
+              for m in maturation.values() for v in m.values()]  # fmt: skip
+    finite = np.concatenate([x[np.isfinite(x)] for x in values])
+    vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    for row, g in enumerate(names):
+        for col, (step, v) in enumerate(sorted(maturation[g].items())):
+            means, _ = ca.binned_means(v["obs"][:, i], v["obs"][:, j], v["feedback"], xe, ye)
+            ax = axes[row][col]
+            ax.imshow(means.T, origin="lower", aspect="auto", extent=(xe[0], xe[-1], ye[0], ye[-1]),
+                      vmin=vmin, vmax=vmax, cmap="viridis")  # fmt: skip
+            ax.set_title(f"{g}, step {step}", fontsize=8)
+            ax.set_xlabel(env.obs_names[i])
+            ax.set_ylabel(env.obs_names[j])
+    fig.suptitle("feedback ||du/dx||^2 as training matures (shared scale)", fontsize=10)
+    save_figure(fig, path)
+
+
+def _write_html(out_dir: str, figures: dict[str, str], markdown: str, runs: list[Run]) -> None:
+    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>minatt-jax report</title>",
+             "<style>body{font-family:sans-serif;max-width:1300px;margin:auto}"
+             "img{max-width:100%}pre{background:#f4f4f4;padding:8px}</style></head><body>",
+             "<h1>minatt-jax analysis report</h1>", "<h2>Runs</h2><ul>"]  # fmt: skip
+    for r in runs:
+        parts.append(f"<li>{html.escape(r.run_dir)}: {html.escape(r.group)}, seed "
+                     f"{r.config.seed}</li>")  # fmt: skip
+    parts.append("</ul><h2>Tables</h2><pre>" + html.escape(markdown) + "</pre>")
+    parts.append("<h2>Figures</h2><ul>")
+    parts += [f"<li><a href='#{name}'>{name}</a>: {html.escape(text)}</li>"
+              for name, text in figures.items()]  # fmt: skip
+    parts.append("</ul>")
+    for name, text in figures.items():
+        with open(os.path.join(out_dir, name), "rb") as f:
+            data = base64.b64encode(f.read()).decode()
+        parts.append(f"<h3 id='{name}'>{name}</h3><p>{html.escape(text)}</p>"
+                     f"<img alt='{name}' src='data:image/png;base64,{data}'>")  # fmt: skip
+    parts.append("</body></html>")
+    tmp = os.path.join(out_dir, "report.html.tmp")
+    with open(tmp, "w") as f:
+        f.write("\n".join(parts))
+    os.replace(tmp, os.path.join(out_dir, "report.html"))

@@ -1,0 +1,99 @@
+"""analyze: seed aggregation in tables, every figure from smoke runs, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from minatt_jax.cli import main
+from minatt_jax.config import PRESETS, with_overrides
+from minatt_jax.report import FIGURES, Run, aggregate_tables, tables_markdown
+
+
+def _fake_run(path, alpha, seed, returns, meta_after=None):
+    os.makedirs(path, exist_ok=True)
+    config = with_overrides(PRESETS["smoke"], ma_alpha=alpha, seed=seed)
+    with open(os.path.join(path, "config.json"), "w") as f:
+        json.dump(config.to_dict(), f)
+    with open(os.path.join(path, "metrics.jsonl"), "w") as f:
+        for step, ret in zip((300, 600), returns, strict=True):
+            f.write(json.dumps({"step": step, "return": ret, "feedback_norm": ret / 10,
+                                "feedforward_norm": 1.0, "energy": 0.5}) + "\n")  # fmt: skip
+    if meta_after is not None:
+        mean = {k: {"before": 1.0, "after": meta_after} for k in
+                ("return", "feedback_norm", "feedforward_norm", "energy")}  # fmt: skip
+        with open(os.path.join(path, "meta_test_mass.json"), "w") as f:
+            json.dump({"mean_over_tasks": mean}, f)
+    return Run(str(path), config, f"sac alpha={alpha:g}")
+
+
+def test_tables_aggregate_seeds(tmp_path):
+    runs = [
+        _fake_run(tmp_path / "a0", 0.0, 0, (10.0, 100.0), meta_after=50.0),
+        _fake_run(tmp_path / "a1", 0.0, 1, (10.0, 140.0), meta_after=70.0),
+        _fake_run(tmp_path / "b0", 1.0, 0, (10.0, 90.0)),
+    ]
+    tables = aggregate_tables(runs)
+    a, b = tables["meta_training"]
+    assert a["group"] == "sac alpha=0" and a["seeds"] == 2 and a["step"] == 600
+    assert a["return"] == pytest.approx(120.0) and a["return_std"] == pytest.approx(20.0)
+    assert a["feedback_norm"] == pytest.approx(12.0)
+    assert b["seeds"] == 1 and b["return"] == pytest.approx(90.0) and b["return_std"] == 0.0
+    (test_row,) = tables["meta_testing"]
+    assert test_row["variant"] == "mass" and test_row["seeds"] == 2
+    assert test_row["return"] == pytest.approx(60.0) and test_row["return_std"] == pytest.approx(10)
+    assert test_row["return_before"] == pytest.approx(1.0)
+    markdown = tables_markdown(tables)
+    assert "| sac alpha=0 | 2 | 600 | 120 +- 20 |" in markdown
+
+
+@pytest.fixture(scope="module")
+def smoke_runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("analyze_runs")
+    dirs = []
+    for alpha in ("0", "1"):
+        run_dir = str(root / f"alpha{alpha}")
+        assert main(["train", "--preset", "smoke", "--steps", "300", "--alpha", alpha,
+                     "--out", run_dir]) == 0  # fmt: skip
+        dirs.append(run_dir)
+    return dirs
+
+
+def test_analyze_writes_every_figure_and_a_self_contained_report(smoke_runs, tmp_path):
+    out = tmp_path / "report"
+    argv = ["analyze", *smoke_runs, "--out", str(out), "--episodes", "2", "--bins", "5",
+            "--grid", "2", "--grid-rollouts", "2", "--grid-steps", "10",
+            "--maturation-steps", "300"]  # fmt: skip
+    assert main(argv) == 0
+    html = (out / "report.html").read_text()
+    for name in FIGURES:
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000, name
+        assert f"id='{name}'" in html
+    assert html.count("data:image/png;base64,") == len(FIGURES)
+    assert "src='http" not in html  # nothing to fetch: readable offline
+    tables = json.loads((out / "tables.json").read_text())
+    assert [r["group"] for r in tables["meta_training"]] == ["sac alpha=0", "sac alpha=1"]
+    assert np.isfinite(tables["meta_training"][0]["return"])
+
+
+def test_analyze_bad_input_exit_2(smoke_runs, tmp_path, capsys):
+    other = tmp_path / "walker"
+    other.mkdir()
+    with open(os.path.join(smoke_runs[0], "config.json")) as f:
+        config = json.load(f)
+    (other / "config.json").write_text(json.dumps({**config, "env": "walker2d"}))
+    assert main(["analyze", smoke_runs[0], str(other), "--out", str(tmp_path / "r")]) == 2
+    assert "different environments" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "config.json").write_text(json.dumps(config))
+    assert main(["analyze", str(empty), "--out", str(tmp_path / "r")]) == 2
+    assert "has no checkpoints" in capsys.readouterr().err
+    argv = ["analyze", smoke_runs[0], "--out", str(tmp_path / "r"), "--perturbation", "windy"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "unknown variant" in err and len(err.strip().splitlines()) == 1
