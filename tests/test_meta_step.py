@@ -16,10 +16,13 @@ from minatt_jax.sac import make_sac
 OBS, ACT, TASKS, BATCH = 3, 2, 2, 6
 
 
-def _setup(inner_lr, first_order, inner="sac"):
+def _setup(inner_lr, first_order, inner="sac", x64=True):
     sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
     agent = sac.init(jax.random.PRNGKey(0))
-    agent = jax.tree.map(lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent)
+    if x64:
+        agent = jax.tree.map(
+            lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent
+        )
     meta = make_meta_step(sac, inner_lr, first_order, inner=inner)
     rng = np.random.default_rng(0)
 
@@ -125,8 +128,8 @@ def test_vpg_inner_step_raises_the_imagined_return():
 def test_trpo_outer_step_stays_in_the_trust_region():
     sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
     agent = sac.init(jax.random.PRNGKey(0))
-    _, _, _, supports, queries = _setup(0.1, False)
-    supports, queries = jax.tree.map(lambda x: x.astype(jnp.float32), (supports, queries))
+    _, _, _, supports, queries = _setup(0.1, False, x64=False)
+    supports, queries = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), (supports, queries))
     meta = make_meta_step(sac, 0.1, outer="trpo", max_kl=0.005)
     critic_batch = _task(queries, 0)
     key = jax.random.PRNGKey(5)

@@ -8,7 +8,15 @@ import os
 import numpy as np
 import pytest
 
-from minatt_jax.cli import main
+from minatt_jax.cli import main as _main
+
+
+def main(argv):
+    """The CLI's exit status, whether it returns it or argparse raises SystemExit."""
+    try:
+        return _main(argv)
+    except SystemExit as e:
+        return e.code
 
 
 @pytest.fixture(scope="module")

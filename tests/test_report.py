@@ -8,9 +8,17 @@ import os
 import numpy as np
 import pytest
 
-from minatt_jax.cli import main
+from minatt_jax.cli import main as _main
 from minatt_jax.config import PRESETS, with_overrides
 from minatt_jax.report import FIGURES, Run, aggregate_tables, tables_markdown
+
+
+def main(argv):
+    """The CLI's exit status, whether it returns it or argparse raises SystemExit."""
+    try:
+        return _main(argv)
+    except SystemExit as e:
+        return e.code
 
 
 def _fake_run(path, alpha, seed, returns, meta_after=None):
