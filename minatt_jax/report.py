@@ -166,7 +166,7 @@ def _heatmap_figure(groups, states, metric, env, bins, path, title_suffix=""):
     plt = _pyplot()
     pairs = ca.projection_indices(env.obs_names, env.name)
     names = list(groups)
-    fig, axes = plt.subplots(len(pairs), len(names), squeeze=False,
+    fig, axes = plt.subplots(len(pairs), len(names), squeeze=False, layout="constrained",
                              figsize=(3.8 * len(names), 3.2 * len(pairs)))  # fmt: skip
     out = {}
     for row, (i, j) in enumerate(pairs):
@@ -377,7 +377,8 @@ def analyze(
 def _decomposition_figure(decomposition, dt, path):
     plt = _pyplot()
     tasks = list(next(iter(decomposition.values())))
-    fig, axes = plt.subplots(len(tasks), 2, figsize=(10, 3.0 * len(tasks)), squeeze=False)
+    fig, axes = plt.subplots(len(tasks), 2, figsize=(10, 3.0 * len(tasks)), squeeze=False,
+                             layout="constrained")  # fmt: skip
     for row, task in enumerate(tasks):
         for g, parts in decomposition.items():
             d = parts[task]
