@@ -66,7 +66,7 @@ def meta_metric_names(base: tuple[str, ...], outer: str = "sac") -> tuple[str, .
 
 def make_mb_trainer(config: TrainConfig):
     """Builds the model-based trainer (``config.algo`` in {"mbpo", "mbmpo"})."""
-    from minatt_jax.trainer import Trainer  # the shared interface
+    from minatt_jax.trainer import Trainer, summarize_chunk  # the shared interface
 
     mb, mcfg = config.mb, config.model
     meta = config.algo == "mbmpo"
@@ -269,14 +269,7 @@ def make_mb_trainer(config: TrainConfig):
 
     def train_chunk(ts: MBTrainState) -> tuple[MBTrainState, dict]:
         ts, metrics = jax.lax.scan(iteration, ts, None, length=iterations)
-        updated = jnp.maximum(jnp.sum(metrics["updated"]), 1.0)
-        summary = {k: jnp.sum(metrics[k] * metrics["updated"]) / updated for k in names}
-        episodes = jnp.sum(metrics["episodes_finished"])
-        summary["train_episode_return"] = jnp.where(
-            episodes > 0, jnp.sum(metrics["finished_return_sum"]) / jnp.maximum(episodes, 1), 0.0
-        )
-        summary["train_episodes"] = episodes
-        summary["updates"] = jnp.sum(metrics["updated"]) * mb.agent_updates_per_step
+        summary = summarize_chunk(metrics, names, mb.agent_updates_per_step)
         summary["model_fits"] = jnp.sum(metrics["refit"])
         summary["imagined_transitions"] = jnp.sum(metrics["imagined"])
         summary["rollout_length"] = rollout_length(ts.env_steps).astype(jnp.float32)

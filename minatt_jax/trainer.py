@@ -63,6 +63,20 @@ class Trainer(NamedTuple):
     parts: dict[str, Callable] | None = None
 
 
+def summarize_chunk(metrics: dict, names: tuple[str, ...], updates_per_step: int) -> dict:
+    """A chunk's per-iteration outputs -> update metrics averaged over the iterations that
+    updated, mean return of the episodes that finished, and counts."""
+    updated = jnp.maximum(jnp.sum(metrics["updated"]), 1.0)
+    summary = {k: jnp.sum(metrics[k] * metrics["updated"]) / updated for k in names}
+    episodes = jnp.sum(metrics["episodes_finished"])
+    summary["train_episode_return"] = jnp.where(
+        episodes > 0, jnp.sum(metrics["finished_return_sum"]) / jnp.maximum(episodes, 1), 0.0
+    )
+    summary["train_episodes"] = episodes
+    summary["updates"] = jnp.sum(metrics["updated"]) * updates_per_step
+    return summary
+
+
 def make_trainer(config: TrainConfig) -> Trainer:
     """Builds the environment, agent and jitted functions for ``config``.
 
@@ -199,15 +213,7 @@ def make_trainer(config: TrainConfig) -> Trainer:
 
     def train_chunk(ts: TrainState) -> tuple[TrainState, dict]:
         ts, metrics = jax.lax.scan(iteration, ts, None, length=iterations)
-        updated = jnp.maximum(jnp.sum(metrics["updated"]), 1.0)
-        summary = {k: jnp.sum(metrics[k] * metrics["updated"]) / updated for k in names}
-        episodes = jnp.sum(metrics["episodes_finished"])
-        summary["train_episode_return"] = jnp.where(
-            episodes > 0, jnp.sum(metrics["finished_return_sum"]) / jnp.maximum(episodes, 1), 0.0
-        )
-        summary["train_episodes"] = episodes
-        summary["updates"] = jnp.sum(metrics["updated"]) * config.updates_per_step
-        return ts, summary
+        return ts, summarize_chunk(metrics, names, config.updates_per_step)
 
     evaluator = make_evaluator(
         env, sac.control, config.max_episode_steps, norm_on, config.eval_episodes
