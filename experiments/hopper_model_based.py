@@ -30,23 +30,24 @@ def run_dir(runs: str, algo: str, alpha: float, seed: int) -> str:
     return os.path.join(runs, f"hopper_{algo}_alpha{alpha:g}_seed{seed}")
 
 
-def collect(runs: str, seeds: list[int]) -> list[dict]:
+def collect(runs: str, seeds: list[int], variants=VARIANTS) -> list[dict]:
     """Every evaluation record of every run directory that exists."""
     out = []
-    for algo, alpha in VARIANTS:
+    for algo, alpha in variants:
         for seed in seeds:
             for record in runner.read_metrics(run_dir(runs, algo, alpha, seed)):
                 out.append({"algo": algo, "alpha": alpha, "seed": seed, **record})
     return out
 
 
-def table(records: list[dict]) -> list[str]:
+def table(records: list[dict], variants=VARIANTS, steps=STEPS) -> list[str]:
+    """Markdown rows: mean +- std over seeds per (algo, alpha) and evaluation step."""
     lines = [
         "| algo | alpha | step | seeds | " + " | ".join(COLUMNS) + " | env steps/s |",
         "|---" * (len(COLUMNS) + 5) + "|",
     ]
-    for algo, alpha in VARIANTS:
-        for step in STEPS:
+    for algo, alpha in variants:
+        for step in steps:
             rows = [r for r in records
                     if r["algo"] == algo and r["alpha"] == alpha and r["step"] == step]  # fmt: skip
             if not rows:

@@ -9,7 +9,9 @@
   i.e. obs[0] (rootz, relative to its initial height) and obs[1] (rooty). The environments that
   terminate use their own termination as the equivalent (hopper, walker2d, humanoid: the
   ``envs.termination`` functions of the observation);
-* ``PROJECTIONS``: the paper's 2D projections per environment, as observation names.
+* ``PROJECTIONS``: the paper's 2D projections per environment, as observation names;
+* ``FAILURE_GRID_RANGES``: the (forward velocity, pitch rate) ranges of the failure grid per
+  environment. The paper gives none; ours span what each body survives at least sometimes.
 """
 
 from __future__ import annotations
@@ -31,6 +33,16 @@ PROJECTIONS: dict[str, tuple[tuple[str, str], ...]] = {
     "walker2d": (("rooty", "rootz"), ("rooty", "vel_rooty"), ("vel_rootx", "rooty")),
     "humanoid": (("vel_root_x", "root_z"), ("right_hip_y", "left_hip_y")),
 }  # fmt: skip
+
+# (vx min, vx max), (pitch rate min, pitch rate max) of the initial states, m/s and rad/s. The
+# hopper and walker terminate at |pitch| >= 0.2 and 1.0 rad, so a pitch rate of 4 rad/s ends a
+# hopper episode within a few steps whatever the policy does: their ranges are narrower.
+FAILURE_GRID_RANGES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
+    "halfcheetah": ((-1.0, 4.0), (-4.0, 4.0)),
+    "hopper": ((-1.0, 2.0), (-1.5, 1.5)),
+    "walker2d": ((-1.0, 3.0), (-3.0, 3.0)),
+    "humanoid": ((-1.0, 2.0), (-1.0, 1.0)),
+}
 
 HALFCHEETAH_Z_MIN = -0.42
 HALFCHEETAH_PITCH_MAX = 1.1

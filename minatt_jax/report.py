@@ -313,8 +313,9 @@ def analyze(
         perturbed = envs.task_list(env, settings.perturbation)[0][0]
         pooled: list[dict[str, np.ndarray]] = []
         grid_list = []
-        vx = jnp.linspace(-1.0, 4.0, settings.grid)
-        w = jnp.linspace(-4.0, 4.0, settings.grid)
+        (vx_lo, vx_hi), (w_lo, w_hi) = ca.FAILURE_GRID_RANGES[env.name]
+        vx = jnp.linspace(vx_lo, vx_hi, settings.grid)
+        w = jnp.linspace(w_lo, w_hi, settings.grid)
         for n, r in enumerate(members):
             _, params, norm = t.restore(r.run_dir)
             visited = _visited(t, params, norm, jax.random.fold_in(key, n), settings.episodes,

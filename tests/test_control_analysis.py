@@ -64,6 +64,8 @@ def test_projections_name_real_observations(make_env):
         assert len(pairs) == len(ca.PROJECTIONS[name])
         assert all(0 <= i < env.observation_size and 0 <= j < env.observation_size
                    for i, j in pairs)  # fmt: skip
+        (vx_lo, vx_hi), (w_lo, w_hi) = ca.FAILURE_GRID_RANGES[name]
+        assert vx_lo < 0.0 < vx_hi and w_lo < 0.0 < w_hi  # standing still lies inside the grid
 
 
 def test_failure_grid_zero_policy_on_hopper(make_env):

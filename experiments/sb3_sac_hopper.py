@@ -1,0 +1,86 @@
+"""Reference SAC baseline: Stable-Baselines3 SAC on Gymnasium Hopper-v4 (MuJoCo C engine).
+
+    python experiments/sb3_sac_hopper.py [--steps 50000] [--seed 0]
+
+Checks whether a weak minatt-jax SAC hopper curve comes from our SAC or from the task: same
+settings as the cpu preset (256x256, Adam 3e-4, batch 256, gamma 0.99, tau 0.005, automatic
+entropy with target -act_dim, 5,000 uniform random warm-up steps, one update per step) and the
+same evaluation (5 deterministic episodes every 5,000 steps). Hopper-v4 is the Gym v3 Hopper that
+``envs/hopper.py`` rebuilds in MJX. Needs ``stable-baselines3`` and ``torch``, which minatt-jax
+does not depend on; writes ``experiments/results/sb3_sac_hopper_seed{seed}.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+RESULTS = os.path.join(os.path.dirname(__file__), "results")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=50_000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--eval-every", type=int, default=5_000)
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    try:
+        import gymnasium as gym
+        import torch
+        from stable_baselines3 import SAC
+        from stable_baselines3.common.callbacks import BaseCallback
+    except ImportError as e:
+        print(f"error: this reference run needs stable-baselines3 and torch ({e})", file=sys.stderr)
+        sys.exit(2)
+    torch.set_num_threads(args.threads)
+    env = gym.make("Hopper-v4")
+    eval_env = gym.make("Hopper-v4")
+    records: list[dict] = []
+    start = time.perf_counter()
+    out = os.path.join(RESULTS, f"sb3_sac_hopper_seed{args.seed}.json")
+
+    def evaluate(model, step: int) -> None:
+        returns, lengths = [], []
+        for episode in range(5):
+            obs, _ = eval_env.reset(seed=10_000 + 100 * args.seed + episode)
+            total, n, done = 0.0, 0, False
+            while not done:
+                action, _ = model.predict(obs, deterministic=True)
+                obs, reward, terminated, truncated, _ = eval_env.step(action)
+                total, n, done = total + float(reward), n + 1, terminated or truncated
+            returns.append(total)
+            lengths.append(n)
+        records.append({
+            "step": step, "return": float(np.mean(returns)), "return_std": float(np.std(returns)),
+            "length": float(np.mean(lengths)), "wall_s": time.perf_counter() - start,
+        })  # fmt: skip
+        print(f"step {step:7d} | return {np.mean(returns):8.1f} | length {np.mean(lengths):6.1f}"
+              f" | {time.perf_counter() - start:6.0f} s", flush=True)  # fmt: skip
+        os.makedirs(RESULTS, exist_ok=True)
+        tmp = out + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump({"env": "Hopper-v4", "seed": args.seed, "records": records}, f, indent=1)
+        os.replace(tmp, out)
+
+    class EvalEvery(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % args.eval_every == 0:
+                evaluate(self.model, self.num_timesteps)
+            return True
+
+    model = SAC(
+        "MlpPolicy", env, learning_rate=3e-4, buffer_size=1_000_000, learning_starts=5_000,
+        batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=1, ent_coef="auto",
+        policy_kwargs={"net_arch": [256, 256]}, seed=args.seed, verbose=0,
+    )  # fmt: skip
+    model.learn(total_timesteps=args.steps, callback=EvalEvery())
+
+
+if __name__ == "__main__":
+    main()
