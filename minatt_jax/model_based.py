@@ -66,7 +66,7 @@ def meta_metric_names(base: tuple[str, ...], outer: str = "sac") -> tuple[str, .
 
 def make_mb_trainer(config: TrainConfig):
     """Builds the model-based trainer (``config.algo`` in {"mbpo", "mbmpo"})."""
-    from minatt_jax.trainer import Trainer, summarize_chunk  # the shared interface
+    from minatt_jax.trainer import Trainer, env_step, summarize_chunk  # shared with SAC
 
     mb, mcfg = config.mb, config.model
     meta = config.algo == "mbmpo"
@@ -215,29 +215,16 @@ def make_mb_trainer(config: TrainConfig):
     def iteration(ts: MBTrainState, _: None) -> tuple[MBTrainState, dict]:
         rng, k_act, k_reset, k_slot, k_model, k_update = jax.random.split(ts.rng, 6)
         action = act(ts, k_act)
-        next_state = jax.vmap(env.step)(ts.env_state, action)
-        length = ts.episode_length + 1
-        terminal = next_state.done
-        ended = (terminal > 0) | (length >= config.max_episode_steps)
-        real = replay.insert(
-            ts.real,
-            Transitions(obs=ts.env_state.obs, action=action, reward=next_state.reward,
-                        next_obs=next_state.obs, terminal=terminal),
-        )  # fmt: skip
-        ep_return = ts.episode_return + next_state.reward
-        fresh = jax.lax.cond(jnp.any(ended), sample_task_reset, lambda k: next_state, k_reset)
-        env_state = jax.tree.map(
-            lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
-            fresh,
-            next_state,
-        )
+        s = env_step(env, ts.env_state, action, ts.episode_return, ts.episode_length,
+                     config.max_episode_steps, sample_task_reset, k_reset)  # fmt: skip
+        ended = s.ended
         new_slot = jax.random.randint(k_slot, (1,), 0, slots)
         steps = ts.env_steps + 1
         ts = ts.replace(
-            real=real,
-            env_state=env_state,
-            episode_return=jnp.where(ended, 0.0, ep_return),
-            episode_length=jnp.where(ended, 0, length),
+            real=replay.insert(ts.real, s.transitions),
+            env_state=s.env_state,
+            episode_return=s.episode_return,
+            episode_length=s.episode_length,
             episode_slot=jnp.where(ended, new_slot, ts.episode_slot),
             rng=rng,
             env_steps=steps,
@@ -263,7 +250,7 @@ def make_mb_trainer(config: TrainConfig):
             "refit": due.astype(jnp.float32),
             "imagined": imagined.astype(jnp.float32),
             "episodes_finished": jnp.sum(ended.astype(jnp.float32)),
-            "finished_return_sum": jnp.sum(jnp.where(ended, ep_return, 0.0)),
+            "finished_return_sum": s.finished_return,
         }
         return ts, out
 

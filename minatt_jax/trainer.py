@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -75,6 +75,56 @@ def summarize_chunk(metrics: dict, names: tuple[str, ...], updates_per_step: int
     summary["train_episodes"] = episodes
     summary["updates"] = jnp.sum(metrics["updated"]) * updates_per_step
     return summary
+
+
+class EnvStep(NamedTuple):
+    """One step of the training environments with the episode bookkeeping done."""
+
+    transitions: replay.Transitions  # what to store: (obs, action, reward, next_obs, terminal)
+    env_state: EnvState  # next states, with ended episodes replaced by fresh resets
+    episode_return: jax.Array  # running returns, zeroed where an episode ended
+    episode_length: jax.Array
+    ended: jax.Array  # (num_envs,) bool: terminated or reached the step limit
+    finished_return: jax.Array  # sum of the returns of the episodes that ended this step
+
+
+def env_step(
+    env: Any,
+    env_state: EnvState,
+    action: jax.Array,
+    episode_return: jax.Array,
+    episode_length: jax.Array,
+    max_episode_steps: int,
+    reset: Callable[[jax.Array], EnvState],
+    key: jax.Array,
+) -> EnvStep:
+    """Steps every environment, ends episodes (termination or the step limit) and resets them.
+
+    ``reset(key)`` returns fresh states for all environments (new tasks included); it runs
+    under a ``lax.cond`` only when some episode ended, so resets cost nothing otherwise.
+    Shared by the model-free and the model-based trainers.
+    """
+    next_state = jax.vmap(env.step)(env_state, action)
+    length = episode_length + 1
+    terminal = next_state.done
+    ended = (terminal > 0) | (length >= max_episode_steps)
+    transitions = replay.Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
+                                     next_obs=next_state.obs, terminal=terminal)  # fmt: skip
+    ep_return = episode_return + next_state.reward
+    fresh = jax.lax.cond(jnp.any(ended), reset, lambda k: next_state, key)
+    new_state = jax.tree.map(
+        lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
+        fresh,
+        next_state,
+    )
+    return EnvStep(
+        transitions=transitions,
+        env_state=new_state,
+        episode_return=jnp.where(ended, 0.0, ep_return),
+        episode_length=jnp.where(ended, 0, length),
+        ended=ended,
+        finished_return=jnp.sum(jnp.where(ended, ep_return, 0.0)),
+    )
 
 
 def make_trainer(config: TrainConfig) -> Trainer:
@@ -148,37 +198,19 @@ def make_trainer(config: TrainConfig) -> Trainer:
     def iteration(ts: TrainState, _: None) -> tuple[TrainState, dict]:
         rng, k_act, k_reset, k_update = jax.random.split(ts.rng, 4)
         action, ou = act(ts, k_act)
-        next_state = jax.vmap(env.step)(ts.env_state, action)
-        length = ts.episode_length + 1
-        terminal = next_state.done
-        ended = (terminal > 0) | (length >= config.max_episode_steps)
-        buffer = replay.insert(
-            ts.buffer,
-            replay.Transitions(
-                obs=ts.env_state.obs,
-                action=action,
-                reward=next_state.reward,
-                next_obs=next_state.obs,
-                terminal=terminal,
-            ),
-        )
-        normalizer = obs_norm.update(ts.normalizer, next_state.obs) if norm_on else ts.normalizer
-        ep_return = ts.episode_return + next_state.reward
-        # Reset only when some episode ended (a cond, so resets cost nothing otherwise).
-        fresh = jax.lax.cond(jnp.any(ended), reset_envs, lambda k: next_state, k_reset)
-        env_state = jax.tree.map(
-            lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
-            fresh,
-            next_state,
-        )
-        finished_return = jnp.sum(jnp.where(ended, ep_return, 0.0))
+        s = env_step(env, ts.env_state, action, ts.episode_return, ts.episode_length,
+                     config.max_episode_steps, reset_envs, k_reset)  # fmt: skip
+        buffer = replay.insert(ts.buffer, s.transitions)
+        next_obs = s.transitions.next_obs
+        normalizer = obs_norm.update(ts.normalizer, next_obs) if norm_on else ts.normalizer
+        ended, finished_return = s.ended, s.finished_return
         ts = ts.replace(
             buffer=buffer,
-            env_state=env_state,
+            env_state=s.env_state,
             normalizer=normalizer,
             ou_noise=jnp.where(ended[:, None], 0.0, ou),
-            episode_return=jnp.where(ended, 0.0, ep_return),
-            episode_length=jnp.where(ended, 0, length),
+            episode_return=s.episode_return,
+            episode_length=s.episode_length,
             rng=rng,
             env_steps=ts.env_steps + n,
         )
