@@ -101,7 +101,8 @@ def main() -> None:
         )  # fmt: skip
     print("\n".join(lines), flush=True)
     report = os.path.join("runs", "hopper_mbmpo_report")
-    cli("analyze", *dirs, "--out", report, "--grid", str(args.grid))
+    steps = [str(args.steps // 5), str(args.steps // 2), str(args.steps)]  # 10K, 25K, 50K
+    cli("analyze", *dirs, "--out", report, "--grid", str(args.grid), "--maturation-steps", *steps)
     target = os.path.join(RESULTS, "hopper_mbmpo_report")
     os.makedirs(target, exist_ok=True)
     for name in os.listdir(report):
