@@ -162,6 +162,20 @@ def _edges(values: list[np.ndarray], bins: int) -> np.ndarray:
     return np.linspace(lo, hi, bins + 1)
 
 
+def _color_norm(finite: np.ndarray) -> Any:
+    """One color scale for values of several groups: logarithmic when they are positive and span
+    more than two decades (alpha = 1 feedback is ~1000x below alpha = 0's, and a linear scale
+    paints it one flat color), else linear."""
+    from matplotlib.colors import LogNorm, Normalize
+
+    if finite.size == 0:
+        return Normalize(0.0, 1.0)
+    lo, hi = float(finite.min()), float(finite.max())
+    if lo > 0 and hi / lo > 100.0:
+        return LogNorm(lo, hi)
+    return Normalize(lo, hi)
+
+
 def _heatmap_figure(groups, states, metric, env, bins, path, title_suffix=""):
     plt = _pyplot()
     pairs = ca.projection_indices(env.obs_names, env.name)
@@ -178,13 +192,12 @@ def _heatmap_figure(groups, states, metric, env, bins, path, title_suffix=""):
             ok = np.isfinite(v)
             means[g], _ = ca.binned_means(states[g]["obs"][ok, i], states[g]["obs"][ok, j],
                                           v[ok], xe, ye)  # fmt: skip
-        finite = np.concatenate([m[np.isfinite(m)] for m in means.values()] or [np.zeros(1)])
-        vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+        norm = _color_norm(np.concatenate([m[np.isfinite(m)] for m in means.values()]))
         for col, g in enumerate(names):
             ax = axes[row][col]
             extent = (xe[0], xe[-1], ye[0], ye[-1])
             image = ax.imshow(means[g].T, origin="lower", aspect="auto", cmap="viridis",
-                              extent=extent, vmin=vmin, vmax=vmax)  # fmt: skip
+                              extent=extent, norm=norm)  # fmt: skip
             ax.set_xlabel(env.obs_names[i])
             ax.set_ylabel(env.obs_names[j])
             ax.set_title(f"{g}{title_suffix}", fontsize=9)
@@ -363,6 +376,11 @@ def analyze(
     _failure_figure(grids, np.asarray(vx), np.asarray(w), env_name,
                     os.path.join(out_dir, "failure_grid.png"))  # fmt: skip
     figures["failure_grid.png"] = "failure rate over initial forward velocity x pitch rate"
+    runner.write_json_atomic(
+        os.path.join(out_dir, "failure_grid.json"),
+        {"forward_velocity": np.asarray(vx).tolist(), "pitch_rate": np.asarray(w).tolist(),
+         "failure_rate": {g: grids[g].tolist() for g in grids}},  # [vx index][pitch-rate index]
+    )  # fmt: skip
     _maturation_figure(maturation, env, settings.bins, os.path.join(out_dir, "maturation.png"))
     figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
     tables = aggregate_tables(runs)
@@ -401,7 +419,7 @@ def _failure_figure(grids, vx, w, env_name, path):
     panels = names + (["difference"] if len(names) >= 2 else [])
     fig, axes = plt.subplots(1, len(panels), figsize=(4.0 * len(panels), 3.4), squeeze=False)
     extent = (vx[0], vx[-1], w[0], w[-1])
-    for ax, name in zip(axes[0], panels, strict=True):
+    for i, (ax, name) in enumerate(zip(axes[0], panels, strict=True)):
         if name == "difference":
             data, cmap, lim = grids[names[0]] - grids[names[1]], "RdBu_r", (-1, 1)
             title = f"{names[0]} - {names[1]}"
@@ -410,8 +428,9 @@ def _failure_figure(grids, vx, w, env_name, path):
         image = ax.imshow(data.T, origin="lower", aspect="auto", extent=extent, cmap=cmap,
                           vmin=lim[0], vmax=lim[1])  # fmt: skip
         ax.set_title(title, fontsize=9)
-        ax.set_xlabel("initial forward velocity")
-        ax.set_ylabel("initial pitch rate")
+        ax.set_xlabel("initial forward velocity (m/s)")
+        if i == 0:  # one y label: the others would collide with the colorbar on their left
+            ax.set_ylabel("initial pitch rate (rad/s)")
         fig.colorbar(image, ax=ax, shrink=0.8)
     criterion = ("torso z < -0.42 or |pitch| > 1.1" if env_name == "halfcheetah"
                  else "the environment's termination")  # fmt: skip
@@ -425,7 +444,7 @@ def _maturation_figure(maturation, env, bins, path):
     names = list(maturation)
     cols = max(1, max(len(v) for v in maturation.values()))
     fig, axes = plt.subplots(len(names), cols, figsize=(3.6 * cols, 3.0 * len(names)),
-                             squeeze=False)  # fmt: skip
+                             squeeze=False, layout="constrained")  # fmt: skip
     everything = [v["obs"] for m in maturation.values() for v in m.values()]
     if not everything:
         axes[0][0].text(0.5, 0.5, "no policy snapshots in these runs", ha="center")
@@ -435,17 +454,19 @@ def _maturation_figure(maturation, env, bins, path):
     ye = _edges([o[:, j] for o in everything], bins)
     values = [ca.binned_means(v["obs"][:, i], v["obs"][:, j], v["feedback"], xe, ye)[0]
               for m in maturation.values() for v in m.values()]  # fmt: skip
-    finite = np.concatenate([x[np.isfinite(x)] for x in values])
-    vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    norm = _color_norm(np.concatenate([x[np.isfinite(x)] for x in values]))
+    image = None
     for row, g in enumerate(names):
         for col, (step, v) in enumerate(sorted(maturation[g].items())):
             means, _ = ca.binned_means(v["obs"][:, i], v["obs"][:, j], v["feedback"], xe, ye)
             ax = axes[row][col]
-            ax.imshow(means.T, origin="lower", aspect="auto", extent=(xe[0], xe[-1], ye[0], ye[-1]),
-                      vmin=vmin, vmax=vmax, cmap="viridis")  # fmt: skip
+            image = ax.imshow(means.T, origin="lower", aspect="auto", norm=norm, cmap="viridis",
+                              extent=(xe[0], xe[-1], ye[0], ye[-1]))  # fmt: skip
             ax.set_title(f"{g}, step {step}", fontsize=8)
             ax.set_xlabel(env.obs_names[i])
             ax.set_ylabel(env.obs_names[j])
+    if image is not None:
+        fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.8)
     fig.suptitle("feedback ||du/dx||^2 as training matures (shared scale)", fontsize=10)
     save_figure(fig, path)
 

@@ -86,6 +86,11 @@ def test_analyze_writes_every_figure_and_a_self_contained_report(smoke_runs, tmp
     tables = json.loads((out / "tables.json").read_text())
     assert [r["group"] for r in tables["meta_training"]] == ["sac alpha=0", "sac alpha=1"]
     assert np.isfinite(tables["meta_training"][0]["return"])
+    grid = json.loads((out / "failure_grid.json").read_text())
+    assert list(grid["failure_rate"]) == ["sac alpha=0", "sac alpha=1"]
+    rates = np.asarray(grid["failure_rate"]["sac alpha=0"])
+    assert rates.shape == (2, 2) and np.all((rates >= 0) & (rates <= 1))
+    assert grid["forward_velocity"][0] < 0 < grid["forward_velocity"][-1]  # the hopper's range
 
 
 def test_analyze_bad_input_exit_2(smoke_runs, tmp_path, capsys):
