@@ -39,6 +39,11 @@ def finished(directory: str, steps: int) -> bool:
     return bool(records) and records[-1]["step"] >= steps
 
 
+def _read(path: str) -> dict:
+    with open(path) as f:
+        return json.load(f)
+
+
 def cli(*args: str) -> None:
     print("$ minatt-jax " + " ".join(args), flush=True)
     subprocess.run([sys.executable, "-m", "minatt_jax.cli", *args], check=True)
@@ -78,11 +83,9 @@ def main() -> None:
     for d in dirs:
         for variant in VARIANTS:
             path = os.path.join(d, f"meta_test_{variant}.json")
-            done = os.path.exists(path) and json.load(open(path))["step"] >= args.steps
-            if not done:
+            if not (os.path.exists(path) and _read(path)["step"] >= args.steps):
                 cli("meta-test", d, "--variant", variant)
-            with open(path) as f:
-                result = json.load(f)
+            result = _read(path)
             entries.append({"run": os.path.basename(d), "variant": variant,
                             "alpha": result["alpha"], "step": result["step"],
                             "mean_over_tasks": result["mean_over_tasks"],
