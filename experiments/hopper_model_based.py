@@ -30,6 +30,14 @@ def run_dir(runs: str, algo: str, alpha: float, seed: int) -> str:
     return os.path.join(runs, f"hopper_{algo}_alpha{alpha:g}_seed{seed}")
 
 
+def train_or_resume(config, directory: str) -> None:
+    """Trains ``config`` in ``directory``, resuming from its last checkpoint if it has one."""
+    os.makedirs(directory, exist_ok=True)
+    resume = os.path.exists(os.path.join(directory, "config.json"))
+    print(f"== {directory} ({'resume' if resume else 'new'})", flush=True)
+    runner.train(config, directory, resume=resume)
+
+
 def collect(runs: str, seeds: list[int], variants=VARIANTS) -> list[dict]:
     """Every evaluation record of every run directory that exists."""
     out = []
@@ -93,11 +101,7 @@ def main() -> None:
                     PRESETS["cpu"], env="hopper", algo=algo, total_steps=args.steps, seed=seed,
                     ma_alpha=alpha, task_set="train" if algo == "mbmpo" else "nominal",
                 )  # fmt: skip
-                directory = run_dir(args.runs, algo, alpha, seed)
-                os.makedirs(directory, exist_ok=True)
-                resume = os.path.exists(os.path.join(directory, "config.json"))
-                print(f"== {directory} ({'resume' if resume else 'new'})", flush=True)
-                runner.train(config, directory, resume=resume)
+                train_or_resume(config, run_dir(args.runs, algo, alpha, seed))
                 write(collect(args.runs, args.seeds), args.steps)
     write(collect(args.runs, args.seeds), args.steps)
 

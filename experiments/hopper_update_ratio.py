@@ -15,6 +15,7 @@ import argparse
 import os
 
 import numpy as np
+from hopper_model_based import train_or_resume  # same folder: the scripts run from it
 
 from minatt_jax import runner
 from minatt_jax.config import PRESETS, with_overrides
@@ -81,11 +82,7 @@ def main() -> None:
                     PRESETS["cpu"], env="hopper", algo=algo, total_steps=args.steps, seed=seed,
                     ma_alpha=0.0, **{update_field: updates},
                 )  # fmt: skip
-                directory = run_dir(args.runs, algo, updates, seed)
-                os.makedirs(directory, exist_ok=True)
-                resume = os.path.exists(os.path.join(directory, "config.json"))
-                print(f"== {directory} ({'resume' if resume else 'new'})", flush=True)
-                runner.train(config, directory, resume=resume)
+                train_or_resume(config, run_dir(args.runs, algo, updates, seed))
                 write(collect(args.runs, args.seeds), args.steps)
     write(collect(args.runs, args.seeds), args.steps)
 
