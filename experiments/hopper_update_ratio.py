@@ -1,12 +1,15 @@
 """Why model-based does not beat SAC here: agent updates per real step (hopper, alpha = 0).
 
-    python experiments/hopper_update_ratio.py [--steps 20000] [--seeds 0] [--collect-only]
+    python experiments/hopper_update_ratio.py [--steps 20000] [--seeds 0] [--variants mbpo:20]
+                                              [--collect-only]
 
 MBPO's sample efficiency on Hopper comes with 20 policy updates per real step; the cpu preset
 makes 2 (one hour per 50K-step mbmpo run here). This runs mbpo with 2 and 20 updates per step,
 and SAC on real data only with 20 (SAC with 1 is the learning table's baseline), cpu preset
 otherwise, and writes ``experiments/results/hopper_update_ratio.{json,md}``: return, episode
-length and feedback norm at each evaluation. A killed invocation resumes its runs.
+length and feedback norm at each evaluation (mean +- std over the seeds that reached the step).
+``--variants`` picks some of the runs, e.g. one per pinned CPU lane. A killed invocation resumes
+its runs.
 """
 
 from __future__ import annotations
@@ -40,6 +43,22 @@ def collect(runs: str, seeds: list[int]) -> list[dict]:
     ]
 
 
+def _mean_std(values: list[float]) -> str:
+    """'mean' for one seed, 'mean +- std' for several."""
+    if len(values) == 1:
+        return f"{values[0]:.4g}"
+    return f"{np.mean(values):.4g} +- {np.std(values):.2g}"
+
+
+def _variant(text: str) -> tuple[str, int]:
+    """Parse 'algo:updates' (e.g. 'mbpo:20') into one of VARIANTS."""
+    algo, _, updates = text.partition(":")
+    if not updates.isdigit() or (algo, int(updates)) not in VARIANTS:
+        known = ", ".join(f"{a}:{u}" for a, u in VARIANTS)
+        raise argparse.ArgumentTypeError(f"unknown variant {text!r}; choose from {known}")
+    return algo, int(updates)
+
+
 def write(records: list[dict], steps: int) -> None:
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, "hopper_update_ratio.json"), records)
@@ -53,7 +72,7 @@ def write(records: list[dict], steps: int) -> None:
             rows = [r for r in records if (r["algo"], r["updates_per_step"], r["step"]) == key]
             if not rows:
                 continue
-            cells = [f"{np.mean([r[c] for r in rows]):.4g}" for c in COLUMNS]
+            cells = [_mean_std([r[c] for r in rows]) for c in COLUMNS]
             speed = np.mean([r["env_steps_per_s"] for r in rows])
             lines.append(f"| {algo} | {updates} | {step} | {len(rows)} | " + " | ".join(cells)
                          + f" | {speed:.0f} |")  # fmt: skip
@@ -61,7 +80,8 @@ def write(records: list[dict], steps: int) -> None:
         f.write(
             "# Hopper, alpha 0: agent updates per real step\n\n"
             f"`python experiments/hopper_update_ratio.py --steps {steps}` (cpu preset otherwise). "
-            "Deterministic evaluation, 5 episodes; mean over the seeds that reached the step.\n\n"
+            "Deterministic evaluation, 5 episodes; mean +- std over the seeds that reached "
+            "the step.\n\n"
             + "\n".join(lines) + "\n"
         )  # fmt: skip
     print("\n".join(lines), flush=True)
@@ -72,11 +92,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--runs", default="runs/hopper_update_ratio")
+    parser.add_argument("--variants", type=_variant, nargs="+", default=list(VARIANTS))
     parser.add_argument("--collect-only", action="store_true")
     args = parser.parse_args()
     if not args.collect_only:
         for seed in args.seeds:
-            for algo, updates in VARIANTS:
+            for algo, updates in args.variants:
                 update_field = "updates_per_step" if algo == "sac" else "mb_agent_updates_per_step"
                 config = with_overrides(
                     PRESETS["cpu"], env="hopper", algo=algo, total_steps=args.steps, seed=seed,
