@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 
 import numpy as np
 
@@ -36,6 +37,18 @@ def train_or_resume(config, directory: str) -> None:
     resume = os.path.exists(os.path.join(directory, "config.json"))
     print(f"== {directory} ({'resume' if resume else 'new'})", flush=True)
     runner.train(config, directory, resume=resume)
+
+
+def seeds_on_disk(runs: str, seeds: list[int]) -> list[int]:
+    """``seeds`` plus every seed with a run directory under ``runs``, so that lanes running
+    different seeds at once each write the whole table rather than overwriting it with theirs."""
+    found = set(seeds)
+    if os.path.isdir(runs):
+        for name in os.listdir(runs):
+            match = re.search(r"_seed(\d+)$", name)
+            if match:
+                found.add(int(match.group(1)))
+    return sorted(found)
 
 
 def collect(runs: str, seeds: list[int], variants=VARIANTS) -> list[dict]:
@@ -102,8 +115,8 @@ def main() -> None:
                     ma_alpha=alpha, task_set="train" if algo == "mbmpo" else "nominal",
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, alpha, seed))
-                write(collect(args.runs, args.seeds), args.steps)
-    write(collect(args.runs, args.seeds), args.steps)
+                write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
+    write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
 
 
 if __name__ == "__main__":

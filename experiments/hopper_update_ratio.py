@@ -18,7 +18,9 @@ import argparse
 import os
 
 import numpy as np
-from hopper_model_based import train_or_resume  # same folder: the scripts run from it
+
+# same folder: the scripts run from it
+from hopper_model_based import seeds_on_disk, train_or_resume
 
 from minatt_jax import runner
 from minatt_jax.config import PRESETS, with_overrides
@@ -104,8 +106,8 @@ def main() -> None:
                     ma_alpha=0.0, **{update_field: updates},
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, updates, seed))
-                write(collect(args.runs, args.seeds), args.steps)
-    write(collect(args.runs, args.seeds), args.steps)
+                write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
+    write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
 
 
 if __name__ == "__main__":
