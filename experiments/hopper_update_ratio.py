@@ -20,6 +20,7 @@ import os
 import numpy as np
 
 # same folder: the scripts run from it
+from hopper_model_based import run_dir as table_run_dir
 from hopper_model_based import seeds_on_disk, train_or_resume
 
 from minatt_jax import runner
@@ -35,13 +36,17 @@ def run_dir(runs: str, algo: str, updates: int, seed: int) -> str:
     return os.path.join(runs, f"hopper_{algo}_utd{updates}_seed{seed}")
 
 
-def collect(runs: str, seeds: list[int]) -> list[dict]:
-    """Every evaluation record of every run directory that exists."""
+def collect(runs: str, seeds: list[int], table_runs: str, steps: int) -> list[dict]:
+    """Every evaluation record up to ``steps`` of every run directory that exists, led by the
+    learning table's SAC alpha-0 runs (1 update per step) as the reference. A record without a
+    ``device`` field ran here, on the CPU."""
+    dirs = [("sac", 1, s, table_run_dir(table_runs, "sac", 0.0, s)) for s in seeds]
+    dirs += [(a, u, s, run_dir(runs, a, u, s)) for a, u in VARIANTS for s in seeds]
     return [
-        {"algo": algo, "updates_per_step": updates, "seed": seed, **record}
-        for algo, updates in VARIANTS
-        for seed in seeds
-        for record in runner.read_metrics(run_dir(runs, algo, updates, seed))
+        {"algo": algo, "updates_per_step": updates, "seed": seed, "device": "cpu", **record}
+        for algo, updates, seed, directory in dirs
+        for record in runner.read_metrics(directory)
+        if record["step"] <= steps
     ]
 
 
@@ -65,25 +70,28 @@ def write(records: list[dict], steps: int) -> None:
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, "hopper_update_ratio.json"), records)
     lines = [
-        "| algo | updates/step | step | seeds | " + " | ".join(COLUMNS) + " | env steps/s |",
+        "| algo | updates/step | step | seeds | " + " | ".join(COLUMNS) + " | ran on |",
         "|---" * (len(COLUMNS) + 5) + "|",
     ]
-    for algo, updates in VARIANTS:
+    for algo, updates in (("sac", 1), *VARIANTS):
         for step in sorted({r["step"] for r in records}):
             key = (algo, updates, step)
             rows = [r for r in records if (r["algo"], r["updates_per_step"], r["step"]) == key]
             if not rows:
                 continue
             cells = [_mean_std([r[c] for r in rows]) for c in COLUMNS]
-            speed = np.mean([r["env_steps_per_s"] for r in rows])
+            devices = ", ".join(r["device"] for r in sorted(rows, key=lambda r: r["seed"]))
             lines.append(f"| {algo} | {updates} | {step} | {len(rows)} | " + " | ".join(cells)
-                         + f" | {speed:.0f} |")  # fmt: skip
+                         + f" | {devices} |")  # fmt: skip
     with open(os.path.join(RESULTS, "hopper_update_ratio.md"), "w") as f:
         f.write(
             "# Hopper, alpha 0: agent updates per real step\n\n"
             f"`python experiments/hopper_update_ratio.py --steps {steps}` (cpu preset otherwise). "
             "Deterministic evaluation, 5 episodes; mean +- std over the seeds that reached "
-            "the step.\n\n"
+            "the step. SAC with 1 update per step is the learning table's SAC alpha 0 "
+            "(`hopper_model_based.py`). 'ran on' names each seed's machine: cpu = 2 CPU cores, "
+            "jax 0.10.2; h100 = a lent H100 GPU with its own jax 0.11.2, the run's metrics "
+            "copied back.\n\n"
             + "\n".join(lines) + "\n"
         )  # fmt: skip
     print("\n".join(lines), flush=True)
@@ -94,6 +102,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--runs", default="runs/hopper_update_ratio")
+    parser.add_argument(
+        "--table-runs",
+        default="runs/hopper_model_based",
+        help="the learning table's runs: their SAC is the 1-update reference",
+    )
     parser.add_argument("--variants", type=_variant, nargs="+", default=list(VARIANTS))
     parser.add_argument("--collect-only", action="store_true")
     args = parser.parse_args()
@@ -106,8 +119,13 @@ def main() -> None:
                     ma_alpha=0.0, **{update_field: updates},
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, updates, seed))
-                write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
-    write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
+                write(collect_all(args), args.steps)
+    write(collect_all(args), args.steps)
+
+
+def collect_all(args: argparse.Namespace) -> list[dict]:
+    seeds = seeds_on_disk(args.runs, args.seeds)
+    return collect(args.runs, seeds, args.table_runs, args.steps)
 
 
 if __name__ == "__main__":
