@@ -18,7 +18,7 @@ import re
 
 import numpy as np
 
-from minatt_jax import runner
+from minatt_jax import report, runner
 from minatt_jax.config import PRESETS, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results")
@@ -85,7 +85,7 @@ def table(records: list[dict], variants=VARIANTS, steps=STEPS) -> list[str]:
     return lines
 
 
-def write(records: list[dict], steps: int) -> None:
+def write(records: list[dict], steps: int, runs: str) -> None:
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, "hopper_model_based.json"), records)
     lines = table(records)
@@ -98,6 +98,20 @@ def write(records: list[dict], steps: int) -> None:
             + "\n".join(lines) + "\n"
         )  # fmt: skip
     print("\n".join(lines), flush=True)
+    figure(runs, sorted({(r["algo"], r["alpha"], r["seed"]) for r in records}))
+
+
+def figure(runs: str, keys: list[tuple[str, float, int]]) -> None:
+    """Learning curves (return, feedback, feedforward, energy; mean +- std over seeds) of the
+    table's runs: ``results/hopper_model_based.png``."""
+    members = []
+    for algo, alpha, seed in keys:
+        directory = run_dir(runs, algo, alpha, seed)
+        if os.path.exists(os.path.join(directory, "config.json")):
+            config = runner.load_config(directory)
+            members.append(report.Run(directory, config, f"{algo} alpha={alpha:g}"))
+    if members:
+        report.profiles_figure(members, os.path.join(RESULTS, "hopper_model_based.png"))
 
 
 def main() -> None:
@@ -115,8 +129,13 @@ def main() -> None:
                     ma_alpha=alpha, task_set="train" if algo == "mbmpo" else "nominal",
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, alpha, seed))
-                write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
-    write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps)
+                write_all(args)
+    write_all(args)
+
+
+def write_all(args: argparse.Namespace) -> None:
+    """The table and figure over every seed on disk (see ``seeds_on_disk``)."""
+    write(collect(args.runs, seeds_on_disk(args.runs, args.seeds)), args.steps, args.runs)
 
 
 if __name__ == "__main__":

@@ -271,12 +271,16 @@ def tables_markdown(tables: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _profiles_figure(runs: list[Run], path: str) -> None:
+def profiles_figure(runs: list[Run], path: str) -> None:
+    """Return, feedback, feedforward and energy over training, mean +- std across each group's
+    seeds. A metric whose positive values span more than two decades gets a log axis (alpha = 1
+    feedback is ~1000x below alpha = 0's and lies flat on zero on a linear one)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(PROFILE_METRICS), figsize=(4.2 * len(PROFILE_METRICS), 3.3))
     groups: dict[str, list[Run]] = {}
     for r in runs:
         groups.setdefault(r.group, []).append(r)
+    plotted: dict[str, list[np.ndarray]] = {m: [] for m in PROFILE_METRICS}
     for g, members in groups.items():
         records = [runner.read_metrics(r.run_dir) for r in members]
         steps = sorted(set.intersection(*[{x["step"] for x in rec} for rec in records]))
@@ -286,7 +290,12 @@ def _profiles_figure(runs: list[Run], path: str) -> None:
             mean, std = values.mean(0), values.std(0)
             ax.plot(steps, mean, marker="o", ms=3, label=f"{g} ({len(members)} seeds)")
             ax.fill_between(steps, mean - std, mean + std, alpha=0.2)
+            plotted[metric].append(mean)
     for ax, metric in zip(axes, PROFILE_METRICS, strict=True):
+        means = np.concatenate(plotted[metric]) if plotted[metric] else np.zeros(0)
+        means = means[np.isfinite(means)]
+        if means.size and means.min() > 0 and means.max() / means.min() > 100.0:
+            ax.set_yscale("log")
         ax.set_title(metric)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
@@ -369,7 +378,7 @@ def analyze(
         path = os.path.join(out_dir, f"heatmap_{metric}.png")
         heat[metric] = _heatmap_figure(groups, states, metric, env, settings.bins, path)
         figures[f"heatmap_{metric}.png"] = f"{metric} heatmaps over the paper's projections"
-    _profiles_figure(runs, os.path.join(out_dir, "profiles.png"))
+    profiles_figure(runs, os.path.join(out_dir, "profiles.png"))
     figures["profiles.png"] = "return, feedback, feedforward and energy over training"
     _decomposition_figure(decomposition, env.dt, os.path.join(out_dir, "decomposition.png"))
     figures["decomposition.png"] = "||K(t)||_F and ||v(t)|| of u = K(t)x + v(t) along a rollout"
