@@ -93,15 +93,15 @@ def main() -> None:
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, "hopper_meta_test.json"), entries)
     lines = meta_test_table(entries)
-    with open(os.path.join(RESULTS, "hopper_meta_test.md"), "w") as f:
-        f.write(
-            "# Hopper mbmpo meta-test: alpha 0 against alpha 1\n\n"
-            f"`python experiments/hopper_meta_test.py --steps {args.steps}`: runs "
-            + ", ".join(os.path.basename(d) for d in dirs) + ". Mean over the tasks of each set, "
-            "before adaptation and after 10 adaptation steps from 1 real episode per task "
-            "(deterministic evaluation, 5 episodes); mean +- std over seeds.\n\n"
-            + "\n".join(lines) + "\n"
-        )  # fmt: skip
+    runner.write_text_atomic(
+        os.path.join(RESULTS, "hopper_meta_test.md"),
+        "# Hopper mbmpo meta-test: alpha 0 against alpha 1\n\n"
+        f"`python experiments/hopper_meta_test.py --steps {args.steps}`: runs "
+        + ", ".join(os.path.basename(d) for d in dirs) + ". Mean over the tasks of each set, "
+        "before adaptation and after 10 adaptation steps from 1 real episode per task "
+        "(deterministic evaluation, 5 episodes); mean +- std over seeds.\n\n"
+        + "\n".join(lines) + "\n"
+    )  # fmt: skip
     print("\n".join(lines), flush=True)
     report = os.path.join("runs", "hopper_mbmpo_report")
     steps = [str(args.steps // 5), str(args.steps // 2), str(args.steps)]  # 10K, 25K, 50K

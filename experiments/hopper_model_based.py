@@ -91,14 +91,14 @@ def write(records: list[dict], steps: int, runs: str) -> None:
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, "hopper_model_based.json"), records)
     lines = table(records)
-    with open(os.path.join(RESULTS, "hopper_model_based.md"), "w") as f:
-        f.write(
-            "# Hopper: mbmpo (alpha 0, 0.05, 1) against SAC (alpha 0), cpu preset\n\n"
-            f"`python experiments/hopper_model_based.py --steps {steps}`. Deterministic "
-            "evaluation on the run's task set (5 episodes per evaluation); mean +- std over the "
-            "seeds that reached the step (std over seeds, population).\n\n"
-            + "\n".join(lines) + "\n"
-        )  # fmt: skip
+    runner.write_text_atomic(
+        os.path.join(RESULTS, "hopper_model_based.md"),
+        "# Hopper: mbmpo (alpha 0, 0.05, 1) against SAC (alpha 0), cpu preset\n\n"
+        f"`python experiments/hopper_model_based.py --steps {steps}`. Deterministic "
+        "evaluation on the run's task set (5 episodes per evaluation); mean +- std over the "
+        "seeds that reached the step (std over seeds, population).\n\n"
+        + "\n".join(lines) + "\n"
+    )  # fmt: skip
     print("\n".join(lines), flush=True)
     figure(runs, sorted({(r["algo"], r["alpha"], r["seed"]) for r in records}))
 

@@ -49,12 +49,12 @@ def main() -> None:
         lines.append(
             f"| {r['alpha']:g} | {r['seed']} | {r['step']} | {values} | {r['updates_per_s']:.0f} |"
         )
-    with open(os.path.join(RESULTS, "hopper_sac_alpha.md"), "w") as f:
-        f.write(
-            "# Hopper SAC, alpha = 0 against alpha = 1\n\n"
-            f"`python experiments/hopper_sac_alpha.py --steps {args.steps}` (cpu preset; "
-            "deterministic evaluation, mean +- std over 5 episodes).\n\n" + "\n".join(lines) + "\n"
-        )
+    runner.write_text_atomic(
+        os.path.join(RESULTS, "hopper_sac_alpha.md"),
+        "# Hopper SAC, alpha = 0 against alpha = 1\n\n"
+        f"`python experiments/hopper_sac_alpha.py --steps {args.steps}` (cpu preset; "
+        "deterministic evaluation, mean +- std over 5 episodes).\n\n" + "\n".join(lines) + "\n",
+    )
     print("\n".join(lines))
 
 

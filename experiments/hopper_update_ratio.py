@@ -83,17 +83,17 @@ def write(records: list[dict], steps: int) -> None:
             devices = ", ".join(r["device"] for r in sorted(rows, key=lambda r: r["seed"]))
             lines.append(f"| {algo} | {updates} | {step} | {len(rows)} | " + " | ".join(cells)
                          + f" | {devices} |")  # fmt: skip
-    with open(os.path.join(RESULTS, "hopper_update_ratio.md"), "w") as f:
-        f.write(
-            "# Hopper, alpha 0: agent updates per real step\n\n"
-            f"`python experiments/hopper_update_ratio.py --steps {steps}` (cpu preset otherwise). "
-            "Deterministic evaluation, 5 episodes; mean +- std over the seeds that reached "
-            "the step. SAC with 1 update per step is the learning table's SAC alpha 0 "
-            "(`hopper_model_based.py`). 'ran on' names each seed's machine: cpu = 2 CPU cores, "
-            "jax 0.10.2; h100 = a lent H100 GPU with its own jax 0.11.2, the run's metrics "
-            "copied back.\n\n"
-            + "\n".join(lines) + "\n"
-        )  # fmt: skip
+    runner.write_text_atomic(
+        os.path.join(RESULTS, "hopper_update_ratio.md"),
+        "# Hopper, alpha 0: agent updates per real step\n\n"
+        f"`python experiments/hopper_update_ratio.py --steps {steps}` (cpu preset otherwise). "
+        "Deterministic evaluation, 5 episodes; mean +- std over the seeds that reached "
+        "the step. SAC with 1 update per step is the learning table's SAC alpha 0 "
+        "(`hopper_model_based.py`). 'ran on' names each seed's machine: cpu = 2 CPU cores, "
+        "jax 0.10.2; h100 = a lent H100 GPU with its own jax 0.11.2, the run's metrics "
+        "copied back.\n\n"
+        + "\n".join(lines) + "\n"
+    )  # fmt: skip
     print("\n".join(lines), flush=True)
 
 

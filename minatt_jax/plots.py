@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from typing import Any
 
 
@@ -17,10 +18,17 @@ def _pyplot():
 
 def save_figure(fig: Any, path: str) -> None:
     """Writes a PNG atomically (temporary file, then rename) and closes the figure."""
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    os.replace(tmp, path)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    # A unique temporary name: two processes writing the same figure must not share one.
+    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp.png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
     _pyplot().close(fig)
 
 

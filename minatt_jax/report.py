@@ -394,8 +394,7 @@ def analyze(
     figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
     tables = aggregate_tables(runs)
     markdown = tables_markdown(tables)
-    with open(os.path.join(out_dir, "tables.md"), "w") as f:
-        f.write(markdown)
+    runner.write_text_atomic(os.path.join(out_dir, "tables.md"), markdown)
     runner.write_json_atomic(os.path.join(out_dir, "tables.json"), tables)
     _write_html(out_dir, figures, markdown, runs)
     return {"out_dir": out_dir, "figures": list(figures), "groups": list(groups),
@@ -499,7 +498,4 @@ def _write_html(out_dir: str, figures: dict[str, str], markdown: str, runs: list
         parts.append(f"<h3 id='{name}'>{name}</h3><p>{html.escape(text)}</p>"
                      f"<img alt='{name}' src='data:image/png;base64,{data}'>")  # fmt: skip
     parts.append("</body></html>")
-    tmp = os.path.join(out_dir, "report.html.tmp")
-    with open(tmp, "w") as f:
-        f.write("\n".join(parts))
-    os.replace(tmp, os.path.join(out_dir, "report.html"))
+    runner.write_text_atomic(os.path.join(out_dir, "report.html"), "\n".join(parts))

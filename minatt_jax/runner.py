@@ -33,16 +33,22 @@ class RunError(Exception):
     """A problem with the run directory (a user-facing error)."""
 
 
-def write_json_atomic(path: str, obj: Any) -> None:
-    """Writes JSON through a temporary file and a rename: never half a file."""
+def write_text_atomic(path: str, text: str) -> None:
+    """Writes text through a uniquely named temporary file and a rename: never half a file,
+    even with several processes writing the same path."""
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
-        json.dump(obj, f, indent=2)
+        f.write(text)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def write_json_atomic(path: str, obj: Any) -> None:
+    """Writes JSON atomically (see ``write_text_atomic``)."""
+    write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 def _json_value(v: Any) -> float | list:

@@ -110,3 +110,26 @@ def test_analyze_bad_input_exit_2(smoke_runs, tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "unknown variant" in err and len(err.strip().splitlines()) == 1
+
+
+def test_figures_and_text_files_use_a_unique_temporary_name(tmp_path):
+    """Two processes writing one figure (two experiment lanes did) must not share a temporary
+    file: each write goes through its own, and none is left behind."""
+    from minatt_jax import plots, runner
+
+    plt = plots._pyplot()
+    target = str(tmp_path / "curves.png")
+    temporaries = []
+    for i in range(2):
+        fig, ax = plt.subplots()
+        ax.plot([0, i])
+        savefig = fig.savefig
+        fig.savefig = lambda tmp, *a, _save=savefig, **k: (
+            temporaries.append(tmp),
+            _save(tmp, *a, **k),
+        )
+        plots.save_figure(fig, target)
+    assert len(set(temporaries)) == 2 and target + ".tmp.png" not in temporaries
+    runner.write_text_atomic(str(tmp_path / "table.md"), "| a |\n")
+    assert sorted(os.listdir(tmp_path)) == ["curves.png", "table.md"]
+    assert open(target, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
