@@ -106,14 +106,11 @@ def write(records: list[dict], steps: int, runs: str) -> None:
 def figure(runs: str, keys: list[tuple[str, float, int]]) -> None:
     """Learning curves (return, feedback, feedforward, energy; mean +- std over seeds) of the
     table's runs: ``results/hopper_model_based.png``."""
-    members = []
-    for algo, alpha, seed in keys:
-        directory = run_dir(runs, algo, alpha, seed)
-        if os.path.exists(os.path.join(directory, "config.json")):
-            config = runner.load_config(directory)
-            members.append(report.Run(directory, config, f"{algo} alpha={alpha:g}"))
-    if members:
-        report.profiles_figure(members, os.path.join(RESULTS, "hopper_model_based.png"))
+    dirs = [run_dir(runs, *key) for key in keys]
+    dirs = [d for d in dirs if os.path.exists(os.path.join(d, "config.json"))]
+    if dirs:
+        path = os.path.join(RESULTS, "hopper_model_based.png")
+        report.profiles_figure(report.load_runs(dirs), path)
 
 
 def main() -> None:
