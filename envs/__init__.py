@@ -12,7 +12,15 @@ from minatt_jax.envs.halfcheetah import HalfCheetah
 from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, PhysicsOptions
-from minatt_jax.envs.task_sets import TASK_SET_NAMES, task_list, task_set
+from minatt_jax.envs.task_sets import (
+    TASK_FIELDS,
+    TASK_SET_NAMES,
+    TaskSpecError,
+    parse_task,
+    resolve_tasks,
+    task_list,
+    task_set,
+)
 from minatt_jax.envs.tasks import (
     Task,
     apply_task,
@@ -60,6 +68,7 @@ __all__ = [
     "ENV_NAMES",
     "ENVIRONMENTS",
     "PHYSICS_PRESETS",
+    "TASK_FIELDS",
     "TASK_SET_NAMES",
     "HalfCheetah",
     "Hopper",
@@ -67,6 +76,7 @@ __all__ = [
     "LocomotionEnv",
     "PhysicsOptions",
     "Task",
+    "TaskSpecError",
     "UnknownNameError",
     "Walker2d",
     "apply_task",
@@ -74,6 +84,8 @@ __all__ = [
     "make",
     "make_task",
     "num_tasks",
+    "parse_task",
+    "resolve_tasks",
     "sample_task",
     "select_task",
     "stack_tasks",

@@ -6,7 +6,19 @@ the Gym models (moved root joints, other contact dimensions), and applying a tra
 model swapped per call anyway. This class keeps brax's ``State``/``Env`` API, so brax wrappers
 still apply, and steps ``mjx.step`` directly on the Gym model.
 
-Subclasses define the Gym v3 semantics of each environment: observation, reward terms and health.
+Subclasses define the Gym v3 semantics of each environment (observation, reward terms, health)
+and carry the facts every other part of minatt-jax reads about it, so adding an environment is one
+file plus a registry line in ``envs/__init__.py``:
+
+* ``asset_file``: the Gym MJCF model (inside the installed gymnasium package);
+* ``obs_names``: a name per observation index;
+* ``terminated(obs)``: termination as a function of the observation, for imagined rollouts in a
+  learned model (which predicts observations, not MuJoCo states);
+* ``failed(obs)``: the failure criterion of the failure grid (default: ``terminated``);
+* ``projections``: the paper's 2D heatmap projections, as observation names;
+* ``failure_grid_ranges`` / ``failure_qvel_indices``: the failure grid's (forward velocity, pitch
+  rate) ranges of initial states and where those two sit in ``qvel``;
+* ``crippled_joints``: the joint groups the ``crippled`` task set disables, one tuple per task.
 """
 
 from __future__ import annotations
@@ -46,13 +58,23 @@ class LocomotionEnv(Env, abc.ABC):
     reset_noise_scale: float = 0.0
     weights: RewardWeights = RewardWeights(1.0, 0.0, 0.0)
     terminates: bool = True
+    asset_file: str = ""
     # Observation index names for analysis (heatmaps); filled by subclasses.
     obs_names: tuple[str, ...] = ()
+    projections: tuple[tuple[str, str], ...] = ()
+    # ((vx min, vx max), (pitch rate min, pitch rate max)) of the failure grid's initial states.
+    failure_grid_ranges: tuple[tuple[float, float], tuple[float, float]] = (
+        (-1.0, 1.0),
+        (-1.0, 1.0),
+    )
+    # qvel indices of forward velocity and torso pitch rate (planar root: x, z, pitch).
+    failure_qvel_indices: tuple[int, int] = (0, 2)
+    crippled_joints: tuple[tuple[str, ...], ...] = ()
 
     def __init__(self, physics: str | mjcf.PhysicsOptions = "fast") -> None:
         options = mjcf.PHYSICS_PRESETS[physics] if isinstance(physics, str) else physics
         self.physics_options = options
-        self.mj_model: mujoco.MjModel = mjcf.load_model(self.name, options)
+        self.mj_model: mujoco.MjModel = mjcf.load_model(self.asset_file, options)
         self.mjx_model: mjx.Model = mjx.put_model(self.mj_model)
         self.nominal_fields = NominalModelFields.from_model(self.mjx_model)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
@@ -161,3 +183,17 @@ class LocomotionEnv(Env, abc.ABC):
         """1.0 while the agent is healthy (Gym v3 ``is_healthy``); always 1 by default."""
         del data
         return jnp.ones((), jnp.float32)
+
+    # ---- Facts on observations (imagined rollouts, analysis) --------------------------------
+    @staticmethod
+    def terminated(obs: jax.Array) -> jax.Array:
+        """1.0 where an observation (..., obs_dim) ends the episode; never by default."""
+        return jnp.zeros(obs.shape[:-1], jnp.float32)
+
+    def failed(self, obs: jax.Array) -> jax.Array:
+        """1.0 where a state counts as a failure in the failure grid (default: termination)."""
+        return self.terminated(obs)
+
+    def projection_indices(self) -> list[tuple[int, int]]:
+        """The observation indices of ``projections``."""
+        return [(self.obs_names.index(a), self.obs_names.index(b)) for a, b in self.projections]

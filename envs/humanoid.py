@@ -19,9 +19,20 @@ class Humanoid(LocomotionEnv):
     """
 
     name = "humanoid"
+    asset_file = "humanoid.xml"
     frame_skip = 5
     reset_noise_scale = 1e-2
     weights = RewardWeights(forward=1.25, ctrl_cost=0.1, healthy=5.0)
+    projections = (("vel_root_x", "root_z"), ("right_hip_y", "left_hip_y"))
+    failure_grid_ranges = ((-1.0, 2.0), (-1.0, 1.0))
+    failure_qvel_indices = (0, 4)  # free joint: (vx, vy, vz, wx, wy, wz)
+    crippled_joints = (("right_hip_x", "right_hip_z", "right_hip_y", "right_knee"),)
+
+    @staticmethod
+    def terminated(obs: jax.Array) -> jax.Array:
+        """Done unless 1 < z < 2 (z = obs[0] of the truncated observation)."""
+        z = obs[..., 0]
+        return 1.0 - ((z > 1.0) & (z < 2.0)).astype(jnp.float32)
 
     def __init__(self, physics: str | PhysicsOptions = "fast") -> None:
         super().__init__(physics)

@@ -16,14 +16,6 @@ import os
 
 import mujoco
 
-# Gym file name for each environment.
-_ASSET_FILES = {
-    "hopper": "hopper.xml",
-    "halfcheetah": "half_cheetah.xml",
-    "walker2d": "walker2d.xml",  # the v2-v4 model (left foot friction 1.9), not walker2d_v5.xml
-    "humanoid": "humanoid.xml",
-}
-
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsOptions:
@@ -67,8 +59,8 @@ PHYSICS_PRESETS: dict[str, PhysicsOptions] = {
 }
 
 
-def asset_path(env_name: str) -> str:
-    """Path of the Gym MJCF file for ``env_name`` inside the installed gymnasium package."""
+def asset_path(asset_file: str) -> str:
+    """Path of the Gym MJCF file ``asset_file`` inside the installed gymnasium package."""
     spec = importlib.util.find_spec("gymnasium")
     if spec is None or not spec.submodule_search_locations:
         raise RuntimeError(
@@ -76,15 +68,16 @@ def asset_path(env_name: str) -> str:
             "reinstall minatt-jax with its dependencies"
         )
     root = list(spec.submodule_search_locations)[0]
-    path = os.path.join(root, "envs", "mujoco", "assets", _ASSET_FILES[env_name])
+    path = os.path.join(root, "envs", "mujoco", "assets", asset_file)
     if not os.path.exists(path):
         raise RuntimeError(f"model file missing from gymnasium: {path}")
     return path
 
 
-def load_model(env_name: str, options: PhysicsOptions) -> mujoco.MjModel:
-    """The Gym MJCF model of ``env_name`` with ``options`` applied (a MuJoCo C model)."""
-    model = mujoco.MjModel.from_xml_path(asset_path(env_name))
+def load_model(asset_file: str, options: PhysicsOptions) -> mujoco.MjModel:
+    """The Gym MJCF model ``asset_file`` (an environment's ``asset_file``) with ``options``
+    applied (a MuJoCo C model)."""
+    model = mujoco.MjModel.from_xml_path(asset_path(asset_file))
     if model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
         # MJX implements only CG and Newton; Newton is MuJoCo's default.
         model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON

@@ -18,14 +18,6 @@ TRAIN_GRAVITY_FRICTION = ((1.00, 1.00), (0.90, 0.90), (0.95, 1.10), (1.05, 0.90)
 MASS_SCALES = (0.5, 0.75, 1.25, 1.5, 2.0)
 SLOPES = (0.05, 0.10, -0.05, -0.10)  # radians; positive = uphill
 
-# Crippled joints (actuators are found by the joint they drive), one tuple per task.
-CRIPPLED_JOINTS: dict[str, tuple[tuple[str, ...], ...]] = {
-    "halfcheetah": (("bthigh",), ("bshin",), ("bfoot",), ("bthigh", "bshin", "bfoot")),
-    "hopper": (("thigh_joint",),),
-    "walker2d": (("thigh_joint",),),
-    "humanoid": (("right_hip_x", "right_hip_z", "right_hip_y", "right_knee"),),
-}
-
 
 def _actuator_scale(env: LocomotionEnv, joints: tuple[str, ...]) -> np.ndarray:
     """Actuator scale vector with 0 for the actuators driving ``joints``."""
@@ -52,7 +44,7 @@ def task_list(env: LocomotionEnv, set_name: str) -> tuple[list[Task], list[str]]
         tasks = [env.make_task(mass_scale=s) for s in MASS_SCALES]
         return tasks, [f"mass x{s}" for s in MASS_SCALES]
     if set_name == "crippled":
-        joint_sets = CRIPPLED_JOINTS[env.name]
+        joint_sets = env.crippled_joints
         tasks = [env.make_task(actuator_scale=_actuator_scale(env, j)) for j in joint_sets]
         return tasks, ["crippled " + "+".join(j) for j in joint_sets]
     if set_name == "slope":
@@ -60,6 +52,71 @@ def task_list(env: LocomotionEnv, set_name: str) -> tuple[list[Task], list[str]]
         labels = [f"{'uphill' if s > 0 else 'downhill'} {abs(s):.2f} rad" for s in SLOPES]
         return tasks, labels
     raise KeyError(set_name)
+
+
+TASK_FIELDS = {
+    "mass": "mass_scale",
+    "friction": "friction_scale",
+    "gravity": "gravity_scale",
+    "slope": "slope",
+    "crippled": "actuator_scale",
+}
+
+
+class TaskSpecError(ValueError):
+    """A custom task specification that cannot be read (a user-facing error)."""
+
+
+def parse_task(env: LocomotionEnv, spec: str) -> tuple[Task, str]:
+    """One custom task from ``"field=value[,field=value...]"`` and its label.
+
+    Fields: ``mass``, ``friction``, ``gravity`` (scales, > 0), ``slope`` (radians, positive =
+    uphill) and ``crippled`` (joint names joined by ``+``, e.g. ``crippled=bthigh+bshin``).
+    Example: ``mass=1.25,slope=0.12``.
+    """
+    fields: dict[str, object] = {}
+    for part in spec.split(","):
+        name, sep, value = part.strip().partition("=")
+        name = name.strip()
+        if not sep or not value.strip():
+            raise TaskSpecError(f"task {spec!r}: expected field=value, got {part.strip()!r}")
+        if name not in TASK_FIELDS:
+            raise TaskSpecError(
+                f"task {spec!r}: unknown field {name!r}; choose from {', '.join(TASK_FIELDS)}"
+            )
+        if TASK_FIELDS[name] in fields:
+            raise TaskSpecError(f"task {spec!r}: field {name!r} given twice")
+        if name == "crippled":
+            joints = tuple(j.strip() for j in value.split("+"))
+            actuated = [env.mj_model.joint(int(env.mj_model.actuator_trnid[a, 0])).name
+                        for a in range(env.mj_model.nu)]  # fmt: skip
+            unknown = [j for j in joints if j not in actuated]
+            if unknown:
+                raise TaskSpecError(
+                    f"task {spec!r}: {env.name} has no actuated joint {unknown[0]!r}; "
+                    f"choose from {', '.join(actuated)}"
+                )
+            fields["actuator_scale"] = _actuator_scale(env, joints)
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise TaskSpecError(f"task {spec!r}: {name} must be a number, got {value!r}") from None
+        fields[TASK_FIELDS[name]] = number
+    try:
+        return env.make_task(**fields), spec.replace(" ", "")
+    except ValueError as e:
+        raise TaskSpecError(f"task {spec!r}: {e}") from None
+
+
+def resolve_tasks(
+    env: LocomotionEnv, set_name: str, specs: tuple[str, ...] | list[str] = ()
+) -> tuple[list[Task], list[str]]:
+    """Custom tasks when ``specs`` are given (one task per spec), else the named set's."""
+    if specs:
+        pairs = [parse_task(env, s) for s in specs]
+        return [t for t, _ in pairs], [label for _, label in pairs]
+    return task_list(env, set_name)
 
 
 def task_set(env: LocomotionEnv, set_name: str) -> Task:

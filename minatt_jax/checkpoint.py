@@ -1,35 +1,121 @@
-"""Orbax checkpoints of the whole train-state pytree (atomic: orbax writes, then renames).
+"""Checkpoints of the train state as named items (atomic: orbax writes, then renames).
 
-The state is saved as its flat list of leaves (keyed by position); zero-size leaves, which orbax
-refuses and MJX's physics data has several of, are skipped and taken from the template on
-restore. Restoring into a template of another structure or shape fails with CheckpointError.
+Format 2. Every array of the state is saved under its key path, e.g.
+``agent/actor_params/params/Dense_0/kernel``, ``collector/env_state/obs``, ``data/real/size``,
+``model/params/...``, ``meta/...`` (the top-level items: agent, collector, data, model, meta and
+the counters). Beside the arrays each checkpoint holds a small JSON ``manifest``: the format
+version and every item's shape and dtype, so a tool can list what is inside (``describe``)
+without reading arrays. Consequences:
+
+* restoring into a template of another structure fails with one line that names the items that
+  differ (missing, unexpected, or of another shape), never by loading values into wrong fields;
+* one subtree can be read alone (``restore_items``), e.g. the agent without the replay buffers;
+* policy snapshots (one small ``.npz`` per evaluation) use the same key paths for the actor and
+  the observation normalizer, and ``load_policy`` reads them without building a trainer.
+
+Zero-size leaves, which orbax refuses and MJX's physics data has several of, are not saved and
+are taken from the template on restore.
 """
 
 from __future__ import annotations
 
+import logging
 import os
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
+
+from minatt_jax import normalizer as obs_norm
+from minatt_jax.config import TrainConfig
+
+FORMAT = 2
 
 
 class CheckpointError(Exception):
     """A missing, corrupt or incompatible checkpoint (a user-facing error)."""
 
 
+def _key_name(entry: Any) -> str:
+    for attr in ("name", "key", "idx"):
+        if hasattr(entry, attr):
+            return str(getattr(entry, attr))
+    return str(entry)
+
+
+def named_leaves(tree: Any) -> dict[str, Any]:
+    """``{"a/b/c": leaf}`` for every leaf of ``tree`` (None subtrees have no leaves)."""
+    flat, _ = jax.tree_util.tree_flatten_with_path(tree)
+    return {"/".join(_key_name(k) for k in path): leaf for path, leaf in flat}
+
+
+def _nest(flat: dict[str, Any]) -> dict[str, Any]:
+    nested: dict[str, Any] = {}
+    for name, value in flat.items():
+        node = nested
+        *parents, last = name.split("/")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[last] = value
+    return nested
+
+
+def _flatten(nested: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in nested.items():
+        name = f"{prefix}/{k}" if prefix else k
+        if isinstance(v, dict):
+            out.update(_flatten(v, name))
+        else:
+            out[name] = v
+    return out
+
+
+def _manifest(items: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "format": FORMAT,
+        "items": {k: {"shape": list(np.shape(v)), "dtype": str(v.dtype)} for k, v in items.items()},
+    }
+
+
 def _manager(run_dir: str, create: bool) -> ocp.CheckpointManager:
     options = ocp.CheckpointManagerOptions(max_to_keep=2, create=create)
     return ocp.CheckpointManager(
-        os.path.join(os.path.abspath(run_dir), "checkpoints"), options=options
+        os.path.join(os.path.abspath(run_dir), "checkpoints"),
+        options=options,
+        item_names=("state", "manifest"),
     )
+
+
+class _QuietAbsl:
+    """Silences absl's logger (orbax's ``ERROR:absl`` lines) while we report errors ourselves."""
+
+    def __enter__(self) -> None:
+        self.logger = logging.getLogger("absl")
+        self.level = self.logger.level
+        self.logger.setLevel(logging.CRITICAL)
+
+    def __exit__(self, *exc: Any) -> None:
+        self.logger.setLevel(self.level)
 
 
 def save(run_dir: str, step: int, state: Any) -> None:
     """Saves ``state`` as checkpoint ``step`` and waits until it is on disk."""
+    items = {k: v for k, v in named_leaves(state).items() if np.size(v) > 0}
     with _manager(run_dir, create=True) as manager:
-        manager.save(step, args=ocp.args.StandardSave(_payload(state)))
+        saved = manager.save(
+            step,
+            args=ocp.args.Composite(
+                state=ocp.args.PyTreeSave(_nest(items)),
+                manifest=ocp.args.JsonSave(_manifest(items)),
+            ),
+        )
         manager.wait_until_finished()
+    if not saved:
+        raise CheckpointError(
+            f"checkpoint {step} was not written in {run_dir}: a checkpoint at or after it exists"
+        )
 
 
 def latest_step(run_dir: str) -> int | None:
@@ -40,32 +126,122 @@ def latest_step(run_dir: str) -> int | None:
         return manager.latest_step()
 
 
-def restore(run_dir: str, like: Any, step: int | None = None) -> tuple[int, Any]:
-    """Restores checkpoint ``step`` (default: the latest) into the structure of ``like``."""
+def describe(run_dir: str, step: int | None = None) -> dict[str, Any]:
+    """The manifest of checkpoint ``step`` (default: the latest): format and items."""
+    step = _step(run_dir, step)
+    try:
+        with _QuietAbsl(), _manager(run_dir, create=False) as manager:
+            restored = manager.restore(
+                step, args=ocp.args.Composite(manifest=ocp.args.JsonRestore())
+            )
+        manifest = restored.manifest
+    except Exception:  # noqa: BLE001 - orbax raises many types for missing or bad files
+        manifest = None
+    if not isinstance(manifest, dict) or "format" not in manifest:
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} has no manifest: it is corrupt or of format 1 "
+            f"(leaves by position, minatt-jax before named checkpoints); this version reads "
+            f"format {FORMAT}"
+        )
+    if manifest["format"] != FORMAT:
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} has format {manifest['format']}; this version "
+            f"reads format {FORMAT}"
+        )
+    return {"step": step, **manifest}
+
+
+def _step(run_dir: str, step: int | None) -> int:
     step = latest_step(run_dir) if step is None else step
     if step is None:
         raise CheckpointError(f"no checkpoint in {run_dir}")
-    abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _payload(like))
-    try:
-        with _manager(run_dir, create=False) as manager:
-            payload = manager.restore(step, args=ocp.args.StandardRestore(abstract))
-    except Exception as e:  # orbax raises many types for bad files
+    return step
+
+
+def _check_items(
+    run_dir: str, step: int, stored: dict[str, Any], wanted: dict[str, Any], prefix: str
+) -> None:
+    """One-line CheckpointError naming the items where the checkpoint and the template differ."""
+    if prefix:
+        stored = {k: v for k, v in stored.items() if k == prefix or k.startswith(prefix + "/")}
+    wanted = {k: v for k, v in wanted.items() if np.size(v) > 0}
+    missing = sorted(set(wanted) - set(stored))
+    extra = sorted(set(stored) - set(wanted))
+    shapes = sorted(k for k in set(wanted) & set(stored)
+                    if list(np.shape(wanted[k])) != stored[k]["shape"])  # fmt: skip
+    problems = []
+    for label, names in (("missing", missing), ("unexpected", extra), ("of another shape", shapes)):
+        if names:
+            more = f" and {len(names) - 3} more" if len(names) > 3 else ""
+            problems.append(f"{label}: {', '.join(names[:3])}{more}")
+    if problems:
         raise CheckpointError(
-            f"checkpoint {step} in {run_dir} is corrupt or does not match this configuration "
-            f"({type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''})"
+            f"checkpoint {step} in {run_dir} does not match this configuration ("
+            + "; ".join(problems)
+            + ")"
+        )
+
+
+def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -> tuple[int, Any]:
+    """Restores only the items ``like`` names: ``{"agent": template, "data/normalizer": ...}``.
+
+    Each template gives the structure, shapes and dtypes; nothing else is read from disk.
+    """
+    step = _step(run_dir, step)
+    stored = describe(run_dir, step)["items"]
+    wanted: dict[str, Any] = {}
+    for prefix, template in like.items():
+        items = {f"{prefix}/{k}" if k else prefix: v for k, v in named_leaves(template).items()}
+        _check_items(run_dir, step, stored, items, prefix)
+        wanted.update({k: v for k, v in items.items() if np.size(v) > 0})
+    abstract = _nest({k: ocp.utils.to_shape_dtype_struct(np.asarray(v)) for k, v in wanted.items()})
+    restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), abstract)
+    try:
+        with _QuietAbsl(), _manager(run_dir, create=False) as manager:
+            restored = manager.restore(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.PyTreeRestore(
+                        item=abstract, restore_args=restore_args, partial_restore=True
+                    )
+                ),
+            )
+    except Exception as e:  # noqa: BLE001 - orbax raises many types for bad files
+        raise CheckpointError(
+            f"checkpoint {step} in {run_dir} is corrupt ({type(e).__name__}: "
+            f"{str(e).splitlines()[0][:200] if str(e) else ''})"
         ) from None
-    leaves, treedef = jax.tree.flatten(like)
-    restored = [payload.get(_key(i), leaf) for i, leaf in enumerate(leaves)]
-    return step, jax.tree.unflatten(treedef, restored)
+    values = _flatten(restored.state)
+    out = {}
+    for prefix, template in like.items():
+        leaves, treedef = jax.tree.flatten(template)
+        names = [f"{prefix}/{k}" if k else prefix for k in named_leaves(template)]
+        out[prefix] = jax.tree.unflatten(
+            treedef,
+            [
+                jax.numpy.asarray(values[n]) if n in values else leaf
+                for n, leaf in zip(names, leaves, strict=True)
+            ],  # fmt: skip
+        )
+    return step, out
 
 
-def _key(index: int) -> str:
-    return f"leaf{index:05d}"
+def restore(run_dir: str, like: Any, step: int | None = None) -> tuple[int, Any]:
+    """Restores checkpoint ``step`` (default: the latest) whole, into the structure of ``like``
+    (a train state): every item must match."""
+    step = _step(run_dir, step)
+    stored = describe(run_dir, step)["items"]
+    _check_items(run_dir, step, stored, named_leaves(like), "")
+    fields = [f for f in like.__dataclass_fields__ if jax.tree.leaves(getattr(like, f))]
+    step, parts = restore_items(run_dir, {f: getattr(like, f) for f in fields}, step)
+    return step, like.replace(**parts)
 
 
-def _payload(state: Any) -> dict[str, Any]:
-    """The non-empty leaves of ``state`` keyed by position."""
-    return {_key(i): x for i, x in enumerate(jax.tree.leaves(state)) if x.size > 0}
+# ---- policy snapshots -------------------------------------------------------------------------
+
+
+def _snapshot_path(run_dir: str, step: int) -> str:
+    return os.path.join(run_dir, "policy_snapshots", f"step_{step:09d}.npz")
 
 
 def save_policy_snapshot(run_dir: str, step: int, actor_params: Any, normalizer: Any) -> str:
@@ -73,15 +249,18 @@ def save_policy_snapshot(run_dir: str, step: int, actor_params: Any, normalizer:
 
     Full checkpoints keep only the latest two (a model-based state with its buffers is hundreds
     of MB); these snapshots, one per evaluation, let analyses look at the policy at any step.
+    Keys are the checkpoint's key paths (``agent/actor_params/...``, ``data/normalizer/...``).
     """
-    import numpy as np
-
     directory = os.path.join(run_dir, "policy_snapshots")
     os.makedirs(directory, exist_ok=True)
-    leaves = jax.tree.leaves((actor_params, normalizer))
-    path = os.path.join(directory, f"step_{step:09d}.npz")
+    arrays = {
+        **{f"agent/actor_params/{k}": np.asarray(v) for k, v in named_leaves(actor_params).items()},
+        **{f"data/normalizer/{k}": np.asarray(v) for k, v in named_leaves(normalizer).items()},
+        "format": np.asarray(FORMAT),
+    }
+    path = _snapshot_path(run_dir, step)
     tmp = path + ".tmp.npz"
-    np.savez(tmp, **{_key(i): np.asarray(x) for i, x in enumerate(leaves)})
+    np.savez(tmp, **arrays)
     os.replace(tmp, path)
     return path
 
@@ -97,15 +276,76 @@ def snapshot_steps(run_dir: str) -> list[int]:
 
 def load_policy_snapshot(run_dir: str, step: int, like: tuple[Any, Any]) -> tuple[Any, Any]:
     """(actor_params, normalizer) of snapshot ``step``, in the structure of ``like``."""
-    import numpy as np
-
-    path = os.path.join(run_dir, "policy_snapshots", f"step_{step:09d}.npz")
-    leaves, treedef = jax.tree.flatten(like)
+    path = _snapshot_path(run_dir, step)
     try:
         with np.load(path) as f:
-            loaded = [f[_key(i)] for i in range(len(leaves))]
-    except (OSError, KeyError, ValueError) as e:
+            stored = {k: f[k] for k in f.files}
+    except (OSError, ValueError) as e:
         raise CheckpointError(f"policy snapshot {path} is missing or corrupt ({e})") from None
-    if any(a.shape != b.shape for a, b in zip(loaded, leaves, strict=True)):
-        raise CheckpointError(f"policy snapshot {path} does not match this configuration")
-    return jax.tree.unflatten(treedef, [jax.numpy.asarray(x) for x in loaded])
+    if int(stored.get("format", 1)) != FORMAT:
+        raise CheckpointError(
+            f"policy snapshot {path} has format {int(stored.get('format', 1))}; this version "
+            f"reads format {FORMAT}"
+        )
+    out = []
+    for prefix, template in zip(("agent/actor_params", "data/normalizer"), like, strict=True):
+        leaves, treedef = jax.tree.flatten(template)
+        loaded = []
+        for name, leaf in zip(named_leaves(template), leaves, strict=True):
+            key = f"{prefix}/{name}"
+            if key not in stored or stored[key].shape != np.shape(leaf):
+                raise CheckpointError(
+                    f"policy snapshot {path} does not match this configuration ({key} "
+                    f"{'missing' if key not in stored else 'of another shape'})"
+                )
+            loaded.append(jax.numpy.asarray(stored[key]))
+        out.append(jax.tree.unflatten(treedef, loaded))
+    return out[0], out[1]
+
+
+class Policy(NamedTuple):
+    """A trained policy read from a run directory, with what is needed to act."""
+
+    config: TrainConfig
+    step: int
+    env: Any  # the run's environment (LocomotionEnv)
+    agent: Any  # the SAC functions (control, sample, ...)
+    actor_params: Any
+    normalizer: Any
+
+    def control(self, obs: jax.Array) -> jax.Array:
+        """The deterministic control u(obs) (observation normalization applied)."""
+        x = obs_norm.normalize(self.normalizer, obs, self.config.sac.normalize_obs)
+        return self.agent.control(self.actor_params, x)
+
+
+def load_policy(run_dir: str, step: int | None = None) -> Policy:
+    """The policy of ``run_dir`` at ``step`` (default: the latest checkpoint) without building a
+    trainer: from the step's policy snapshot, or from the checkpoint's agent and normalizer items
+    alone when there is no snapshot. No replay or model buffer is allocated."""
+    from minatt_jax import run_files
+    from minatt_jax.train import make_agent
+
+    config = run_files.load_config(run_dir)
+    if step is None:
+        step = latest_step(run_dir)
+        if step is None:
+            snapshots = snapshot_steps(run_dir)
+            if not snapshots:
+                raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
+            step = snapshots[-1]
+    import minatt_jax.envs as envs
+
+    env = envs.make(config.env, config.physics)
+    agent = make_agent(config, env)
+    actor_like = jax.eval_shape(agent.init, jax.random.PRNGKey(0)).actor_params
+    actor_like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), actor_like)
+    norm_like = obs_norm.init_normalizer(env.observation_size)
+    if step in snapshot_steps(run_dir):
+        actor, norm = load_policy_snapshot(run_dir, step, (actor_like, norm_like))
+    else:
+        _, parts = restore_items(
+            run_dir, {"agent/actor_params": actor_like, "data/normalizer": norm_like}, step
+        )
+        actor, norm = parts["agent/actor_params"], parts["data/normalizer"]
+    return Policy(config, step, env, agent, actor, norm)

@@ -1,4 +1,4 @@
-"""The ``minatt-jax`` command line: ``envs``, ``rollout``, ``train``, ``evaluate``, ``meta-test``.
+"""The ``minatt-jax`` command line: envs, rollout, train, evaluate, meta-test, analyze, inspect.
 
 Every user error (unknown name, invalid number, unwritable output) prints one line starting with
 ``minatt-jax: error:`` and exits with status 2, without a traceback.
@@ -65,6 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     p_roll.add_argument(
         "--variant", default="nominal", help=f"task set: one of {', '.join(TASK_SET_NAMES)}"
     )
+    p_roll.add_argument(
+        "--task", action="append", default=[], metavar="SPEC",
+        help="a custom task, e.g. mass=1.25,slope=0.1 (repeat for more)",
+    )  # fmt: skip
     p_roll.add_argument("--steps", type=_positive_int, default=1000, help="env steps per task")
     p_roll.add_argument("--policy", choices=("zero", "random"), default="random")
     p_roll.add_argument("--seed", type=_non_negative_int, default=0)
@@ -80,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_train = sub.add_parser("train", help="train an agent (writes a run directory)")
     p_train.add_argument("--env", default=None, help=f"one of {', '.join(ENV_NAMES)}")
     p_train.add_argument("--algo", default=None, help="sac (default), mbpo or mbmpo")
-    p_train.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
+    p_train.add_argument("--preset", default=None, choices=tuple(PRESETS), help="default: cpu")
     p_train.add_argument("--alpha", type=_non_negative_float, default=None, help="MA weight")
     p_train.add_argument("--ma-mode", choices=MODES, default=None)
     p_train.add_argument("--estimator", choices=ESTIMATORS, default=None)
@@ -92,7 +96,26 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument("--caps-lambda-t", type=_non_negative_float, default=None)
     p_train.add_argument("--caps-lambda-s", type=_non_negative_float, default=None)
     p_train.add_argument("--noise", choices=("gaussian", "ou"), default=None)
-    p_train.add_argument("--variant", default=None, help="task set to train on (nominal)")
+    p_train.add_argument(
+        "--variant",
+        default=None,
+        help="task set to train on (default: train for mbmpo, else nominal)",
+    )
+    p_train.add_argument(
+        "--task",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="a custom training task, e.g. mass=1.25 (repeat for more tasks)",
+    )
+    p_train.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="set",
+        help="set any config field, e.g. ma.alpha=0.5 or mb.meta_inner_lr=1e-3",
+    )
     p_train.add_argument("--steps", type=_positive_int, default=None, help="total env steps")
     p_train.add_argument("--eval-every", type=_positive_int, default=None)
     p_train.add_argument("--num-envs", type=_positive_int, default=None)
@@ -111,7 +134,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_meta = sub.add_parser("meta-test", help="adapt a trained run to each task of a variant")
     p_meta.add_argument("run_dir")
-    p_meta.add_argument("--variant", required=True, help="mass, crippled, slope, ...")
+    p_meta.add_argument("--variant", default=None, help="mass, crippled, slope, ...")
+    p_meta.add_argument(
+        "--task",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="a custom task instead of a variant (repeat for more tasks)",
+    )
     p_meta.add_argument("--shots", type=_positive_int, default=1, help="real episodes per task")
     p_meta.add_argument("--adapt-steps", type=_non_negative_int, default=10)
     p_meta.add_argument("--episodes", type=_positive_int, default=5, help="per evaluation")
@@ -135,9 +165,21 @@ def build_parser() -> argparse.ArgumentParser:
     p_eval = sub.add_parser("evaluate", help="evaluate a run's latest checkpoint")
     p_eval.add_argument("run_dir")
     p_eval.add_argument("--variant", default=None, help="task set (default: the run's)")
+    p_eval.add_argument(
+        "--task",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="a custom task, e.g. crippled=thigh_joint (repeat for more tasks)",
+    )
     p_eval.add_argument("--episodes", type=_positive_int, default=None)
     p_eval.add_argument("--seed", type=_non_negative_int, default=0)
     p_eval.add_argument("--json", action="store_true")
+
+    p_insp = sub.add_parser("inspect", help="list the items saved in a run's checkpoint")
+    p_insp.add_argument("run_dir")
+    p_insp.add_argument("--step", type=_non_negative_int, default=None, help="default: latest")
+    p_insp.add_argument("--json", action="store_true")
     return parser
 
 
@@ -170,41 +212,54 @@ def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
 def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     import minatt_jax.envs as envs
-    from minatt_jax.rollout import make_rollout, random_policy, zero_policy
+    from minatt_jax import acting
 
     try:
         envs.check_task_set_name(args.variant)
         env = envs.make(args.env, args.physics)
-    except envs.UnknownNameError as e:
+        tasks, labels = envs.resolve_tasks(env, args.variant, args.task)
+    except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise UserError(str(e)) from None
-    tasks, labels = envs.task_list(env, args.variant)
     task_set = envs.stack_tasks(tasks)
-    make_policy = random_policy if args.policy == "random" else zero_policy
-    rollout = jax.vmap(make_rollout(env, make_policy(env.action_size), args.steps))
+    make_policy = acting.random_policy if args.policy == "random" else acting.zero_policy
+    policy = make_policy(env.action_size)
+
+    def rollout(key, task):
+        key_reset, key_policy = jax.random.split(key)
+        traj = acting.unroll(env, policy, env.reset(key_reset, task), args.steps, key=key_policy)
+        alive = traj.alive
+        return {
+            "return": jnp.sum(alive * traj.reward),
+            "length": jnp.sum(alive),
+            "forward_reward": jnp.sum(alive * traj.env_metrics["reward_forward"]),
+            "ctrl_reward": jnp.sum(alive * traj.env_metrics["reward_ctrl"]),
+        }
+
     keys = jax.random.split(jax.random.PRNGKey(args.seed), len(tasks))
     print(f"compiling {args.env} rollout ({len(tasks)} tasks x {args.steps} steps) ...", flush=True)
     t0 = time.perf_counter()
-    compiled = jax.jit(rollout).lower(keys, task_set).compile()
+    compiled = jax.jit(jax.vmap(rollout)).lower(keys, task_set).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    result = jax.block_until_ready(compiled(keys, task_set))
+    result = jax.device_get(jax.block_until_ready(compiled(keys, task_set)))
     run_s = time.perf_counter() - t0
     steps_per_s = len(tasks) * args.steps / run_s
     rows = [
         {
             "task": label,
-            "return": float(result.episode_return[i]),
-            "length": int(result.length[i]),
-            "forward_reward": float(result.forward_reward[i]),
-            "ctrl_reward": float(result.ctrl_reward[i]),
+            "return": float(result["return"][i]),
+            "length": int(result["length"][i]),
+            "forward_reward": float(result["forward_reward"][i]),
+            "ctrl_reward": float(result["ctrl_reward"][i]),
         }
         for i, label in enumerate(labels)
     ]
     summary = {
         "env": args.env,
-        "variant": args.variant,
+        "variant": args.variant if not args.task else ";".join(labels),
         "policy": args.policy,
         "steps": args.steps,
         "seed": args.seed,
@@ -213,7 +268,7 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
         "run_s": run_s,
         "env_steps_per_s": steps_per_s,
         "physics_steps_per_s": steps_per_s * env.frame_skip,
-        "mean_return": float(jnp.mean(result.episode_return)),
+        "mean_return": float(np.mean(result["return"])),
         "tasks": rows,
     }
     if args.json:
@@ -233,31 +288,31 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
 
 
 _TRAIN_FLAGS = {
-    # CLI flag (argparse dest) -> TrainConfig override key
-    "env": "env", "algo": "algo", "alpha": "ma_alpha", "ma_mode": "ma_mode",
-    "estimator": "ma_estimator", "probes": "ma_probes", "subsample": "ma_subsample",
-    "interval": "ma_interval", "temporal": "ma_temporal", "placement": "ma_placement",
-    "caps_lambda_t": "caps_lambda_t", "caps_lambda_s": "caps_lambda_s", "noise": "noise",
+    # CLI flag (argparse dest) -> the config field it is an alias of
+    "env": "env", "algo": "algo", "alpha": "ma.alpha", "ma_mode": "ma.mode",
+    "estimator": "ma.estimator", "probes": "ma.probes", "subsample": "ma.subsample",
+    "interval": "ma.interval", "temporal": "ma.temporal", "placement": "ma.placement",
+    "caps_lambda_t": "caps.lambda_t", "caps_lambda_s": "caps.lambda_s", "noise": "noise",
     "variant": "task_set", "steps": "total_steps", "eval_every": "eval_every",
-    "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac_normalize_obs",
-    "ensemble_size": "model_ensemble_size", "elites": "model_num_elites",
-    "rollout_batch": "mb_rollout_batch", "inner_lr": "mb_meta_inner_lr",
-    "first_order": "mb_meta_first_order", "inner": "mb_meta_inner",
-    "outer": "mb_meta_outer",
+    "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac.normalize_obs",
+    "ensemble_size": "model.ensemble_size", "elites": "model.num_elites",
+    "rollout_batch": "mb.rollout_batch", "updates_per_step": "updates_per_step",
+    "inner_lr": "mb.meta_inner_lr", "first_order": "mb.meta_first_order",
+    "inner": "mb.meta_inner", "outer": "mb.meta_outer",
 }  # fmt: skip
 
 
 def _train_config(args: argparse.Namespace):
-    """The run's configuration: the preset (or the stored one, on resume) plus given flags."""
+    """The run's configuration: the preset (or the stored one, on resume), the ``--set``
+    overrides, then the alias flags, resolved (``config.resolve``)."""
     import minatt_jax.envs as envs
     from minatt_jax import runner
-    from minatt_jax.config import PRESETS, with_overrides
+    from minatt_jax.config import PRESETS, apply_overrides, replace_fields, resolve
 
-    overrides = {
-        key: getattr(args, dest)
-        for dest, key in _TRAIN_FLAGS.items()
-        if getattr(args, dest) is not None
-    }
+    aliases = {key: getattr(args, dest) for dest, key in _TRAIN_FLAGS.items()
+               if getattr(args, dest) is not None}  # fmt: skip
+    if args.task:
+        aliases["tasks"] = tuple(args.task)
     if args.resume:
         if args.out is None:
             raise UserError("--resume needs --out RUN_DIR")
@@ -266,33 +321,29 @@ def _train_config(args: argparse.Namespace):
         except runner.RunError as e:
             raise UserError(str(e)) from None
     else:
-        base = PRESETS[args.preset]
-    updates = getattr(args, "updates_per_step", None)
-    algo = overrides.get("algo", base.algo)
-    if updates is not None:
-        overrides["updates_per_step" if algo == "sac" else "mb_agent_updates_per_step"] = updates
-    if "model_ensemble_size" in overrides and "model_num_elites" not in overrides:
-        overrides["model_num_elites"] = min(base.model.num_elites, overrides["model_ensemble_size"])
-    if algo == "mbmpo" and "task_set" not in overrides and not args.resume:
-        overrides["task_set"] = "train"  # meta-training collects data across the train tasks
+        base = PRESETS[args.preset or "cpu"]
     try:
-        config = with_overrides(base, **overrides)
+        config = replace_fields(apply_overrides(base, args.set), aliases)
         if config.env not in envs.ENV_NAMES:
             envs.make(config.env)  # raises UnknownNameError with the list of names
-        envs.check_task_set_name(config.task_set)
+        if config.task_set is not None:
+            envs.check_task_set_name(config.task_set)
+        config = resolve(config)
+        if config.tasks:
+            envs.resolve_tasks(envs.make(config.env, config.physics), config.task_set,
+                               config.tasks)  # fmt: skip
     except (ValueError, envs.UnknownNameError) as e:
         raise UserError(str(e)) from None
     if args.resume:
-        changed = [
-            k for k, v in config.to_dict().items() if v != base.to_dict()[k] and k != "total_steps"
-        ]
-        if changed:
+        stored = base.to_dict()
+        changed = [k for k, v in config.to_dict().items() if v != stored[k] and k != "total_steps"]
+        preset_given = args.preset is not None and args.preset != base.preset
+        if changed or preset_given:
+            what = ", ".join(changed + (["preset"] if preset_given else []))
             raise UserError(
-                f"{args.out} was made with other settings ({', '.join(changed)} differ); "
+                f"{args.out} was made with other settings ({what} differ); "
                 "resume takes them from its config.json (only --steps may change)"
             )
-        if config.total_steps != base.total_steps:
-            runner.write_json_atomic(os.path.join(args.out, "config.json"), config.to_dict())
     return config
 
 
@@ -312,6 +363,8 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
         f" -> {out}",
         flush=True,
     )
+    if args.resume and config.total_steps != runner.load_config(out).total_steps:
+        runner.write_json_atomic(os.path.join(out, "config.json"), config.to_dict())
     try:
         record = runner.train(config, out, resume=args.resume, log=lambda m: print(m, flush=True))
     except runner.RunError as e:
@@ -335,7 +388,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
 
     try:
-        metrics = runner.evaluate_run(args.run_dir, args.variant, args.episodes, args.seed)
+        metrics = runner.evaluate_run(args.run_dir, args.variant, args.episodes, args.seed,
+                                      tuple(args.task))  # fmt: skip
     except runner.RunError as e:
         raise UserError(str(e)) from None
     if args.json:
@@ -357,15 +411,20 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
         shots=args.shots, adapt_steps=args.adapt_steps, episodes=args.episodes,
         updates_per_step=args.updates_per_step, seed=args.seed,
     )  # fmt: skip
+    if (args.variant is None) == (not args.task):
+        raise UserError("meta-test needs either --variant NAME or --task SPEC (one or more)")
+    variant = args.variant or "custom"
     log = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
     try:
-        result = meta_test(args.run_dir, args.variant, settings, log=log)
+        result = meta_test(args.run_dir, variant if args.variant else "nominal", settings,
+                           log=log, task_specs=tuple(args.task))  # fmt: skip
     except runner.RunError as e:
         raise UserError(str(e)) from None
+    result["variant"] = variant
     out = args.out or args.run_dir
-    path = os.path.join(out, f"meta_test_{args.variant}.json")
+    path = os.path.join(out, f"meta_test_{variant}.json")
     _write_json_atomic(path, result)
-    png = os.path.join(out, f"meta_test_{args.variant}.png")
+    png = os.path.join(out, f"meta_test_{variant}.png")
     from minatt_jax.plots import plot_meta_test
 
     plot_meta_test(result, png)
@@ -403,6 +462,25 @@ def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def _cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import checkpoint, runner
+
+    try:
+        runner.load_config(args.run_dir)
+        manifest = checkpoint.describe(args.run_dir, args.step)
+    except (runner.RunError, checkpoint.CheckpointError) as e:
+        raise UserError(str(e)) from None
+    if args.json:
+        print(json.dumps(manifest, indent=2))
+    else:
+        items = manifest["items"]
+        print(f"{args.run_dir}: checkpoint {manifest['step']} (format {manifest['format']}), "
+              f"{len(items)} arrays")  # fmt: skip
+        for name, meta in items.items():
+            print(f"  {name:70s} {str(tuple(meta['shape'])):>18s} {meta['dtype']}")
+    return manifest
+
+
 def _write_json_atomic(path: str, obj: Any) -> None:
     """Writes JSON atomically; an unwritable path is a user error."""
     from minatt_jax.runner import write_json_atomic
@@ -423,6 +501,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "evaluate": _cmd_evaluate,
         "meta-test": _cmd_meta_test,
         "analyze": _cmd_analyze,
+        "inspect": _cmd_inspect,
     }
     try:
         commands[args.command](args)

@@ -1,11 +1,24 @@
-"""Frozen configuration dataclasses and the named presets ``smoke``, ``cpu`` and ``paper``.
+"""Frozen configuration dataclasses, the named presets ``smoke``, ``cpu`` and ``paper``, and the
+one place that turns a preset plus overrides into a run's configuration.
 
-Presets set the scale of a run; CLI flags override single fields (``with_overrides``).
+* ``apply_overrides(config, ["ma.alpha=0.5", "mb.meta_inner_lr=1e-3"])``: dotted overrides of any
+  field, typed from the dataclass annotations (``with_overrides`` is the keyword form for code);
+* ``resolve(config)``: every derived default (fields left at ``None``) and every cross-field
+  rule. The CLI, the runner, experiments and benchmarks all call it; ``make_train`` refuses an
+  unresolved configuration.
+
+Derived defaults: ``task_set`` is "train" for mbmpo (meta-training collects data across the
+training tasks), "nominal" otherwise; ``updates_per_step`` is 1 for sac and 2 (the paper's
+appendix) for mbpo and mbmpo; ``model.num_elites`` is min(5, ensemble_size); ``ma.temporal_dt`` is
+1 update for the parameter reading and the environment's dt for the rollout reading.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import math
+import typing
 from typing import Any
 
 from minatt_jax.dynamics_ensemble import ModelConfig
@@ -26,7 +39,6 @@ class MBConfig:
         linearly from min_len to max_len between the two epochs (MBPO's hopper schedule).
       model_buffer_size: capacity of the imagined-transition buffer (all slots together).
       real_ratio: fraction of each agent batch drawn from real data (the rest from the model).
-      agent_updates_per_step: agent updates per env step.
       obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
       meta_inner_lr: beta of the MAML inner step theta' = theta - beta grad L_i(theta).
       meta_first_order: drop the inner gradient's dependence on theta (first-order MAML).
@@ -42,7 +54,6 @@ class MBConfig:
     rollout_schedule: tuple[int, int, int, int] = (20, 100, 1, 15)
     model_buffer_size: int = 2_000_000
     real_ratio: float = 0.05
-    agent_updates_per_step: int = 2
     obs_clip: float = 100.0
     meta_inner_lr: float = 1e-3
     meta_first_order: bool = False
@@ -52,8 +63,7 @@ class MBConfig:
     trpo_max_kl: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in ("epoch_length", "model_train_every", "rollout_batch", "model_buffer_size",
-                     "agent_updates_per_step"):  # fmt: skip
+        for name in ("epoch_length", "model_train_every", "rollout_batch", "model_buffer_size"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"mb {name} must be positive, got {getattr(self, name)}")
         start, end, lo, hi = self.rollout_schedule
@@ -107,12 +117,13 @@ class TrainConfig:
     env: str = "hopper"
     algo: str = "sac"
     preset: str = "cpu"
-    task_set: str = "nominal"
+    task_set: str | None = None  # None: "train" for mbmpo, else "nominal"
+    tasks: tuple[str, ...] = ()  # custom tasks ("mass=1.25,slope=0.1"); replace task_set if given
     physics: str = "fast"
     seed: int = 0
     total_steps: int = 50_000
     num_envs: int = 1
-    updates_per_step: int = 1
+    updates_per_step: int | None = None  # agent updates per env step; None: sac 1, mbpo/mbmpo 2
     warmup_steps: int = 5_000
     buffer_size: int = 1_000_000
     max_episode_steps: int = 1000
@@ -128,53 +139,70 @@ class TrainConfig:
     mb: MBConfig = MBConfig()
 
     def __post_init__(self) -> None:
-        positive = ("total_steps", "num_envs", "updates_per_step", "buffer_size",
-                    "max_episode_steps", "eval_every", "eval_episodes")  # fmt: skip
+        positive = ("total_steps", "num_envs", "buffer_size", "max_episode_steps", "eval_every",
+                    "eval_episodes")  # fmt: skip
         for name in positive:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.updates_per_step is not None and self.updates_per_step <= 0:
+            raise ValueError(f"updates_per_step must be positive, got {self.updates_per_step}")
         if self.warmup_steps < 0:
             raise ValueError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
         if self.noise not in ("gaussian", "ou"):
             raise ValueError(f"noise must be 'gaussian' or 'ou', got {self.noise!r}")
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algorithm {self.algo!r}; choose from {', '.join(ALGOS)}")
-        if self.algo != "sac" and self.num_envs != 1:
-            raise ValueError(f"{self.algo} collects real data in one environment (num_envs 1)")
-        slots, max_len = self.model.num_elites, self.mb.rollout_schedule[3]
-        if self.algo != "sac" and self.mb.rollout_batch < slots:
-            raise ValueError(
-                f"mb rollout_batch ({self.mb.rollout_batch}) must be >= model num_elites ({slots})"
-            )
-        if self.algo != "sac" and (
-            self.mb.rollout_batch // slots * max_len > self.mb.model_buffer_size // slots
-        ):
-            raise ValueError(
-                f"mb model_buffer_size ({self.mb.model_buffer_size}) must hold one rollout: "
-                f">= rollout_batch x max rollout length = {self.mb.rollout_batch * max_len}"
-            )
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
+
+    @property
+    def model_based(self) -> bool:
+        return self.algo != "sac"
+
+    @property
+    def planned_steps(self) -> int:
+        """The env steps a run trains: whole chunks of ``eval_every`` covering ``total_steps``."""
+        return -(-self.total_steps // self.eval_every) * self.eval_every
+
+    @property
+    def is_resolved(self) -> bool:
+        return None not in (self.task_set, self.updates_per_step, self.model.num_elites,
+                            self.ma.temporal_dt)  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        """Inverse of ``to_dict`` (as read back from ``config.json``)."""
-        nested = ("sac", "ma", "caps", "model", "mb")
-        top = {k: v for k, v in d.items() if k not in nested}
-        sac = {**d["sac"], "hidden": tuple(d["sac"]["hidden"])}
-        model = {k: tuple(v) if isinstance(v, list) else v for k, v in d.get("model", {}).items()}
-        mb = {k: tuple(v) if isinstance(v, list) else v for k, v in d.get("mb", {}).items()}
-        return cls(
-            **top,
-            sac=SACConfig(**sac),
-            ma=MAConfig(**d["ma"]),
-            caps=CAPSConfig(**d["caps"]),
-            model=ModelConfig(**model),
-            mb=MBConfig(**mb),
-        )
+        """Inverse of ``to_dict`` (as read back from ``config.json``; JSON lists become tuples).
+
+        Reads the format before the one-field rule too: ``mb.agent_updates_per_step`` of a
+        model-based run becomes ``updates_per_step``.
+        """
+        d = copy.deepcopy(d)
+        legacy_updates = d.get("mb", {}).pop("agent_updates_per_step", None)
+        if legacy_updates is not None and d.get("algo", "sac") != "sac":
+            d["updates_per_step"] = legacy_updates
+        return _from_dict(cls, d)
+
+
+def _from_dict(cls: type, d: dict[str, Any]) -> Any:
+    """A (nested) config dataclass from a dict; unknown keys raise TypeError."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise TypeError(f"unknown {cls.__name__} fields: {', '.join(sorted(unknown))}")
+    values = {}
+    for name, value in d.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            values[name] = _from_dict(hint, value)
+        elif isinstance(value, list):
+            values[name] = tuple(value)
+        else:
+            values[name] = value
+    return cls(**values)
 
 
 PRESETS: dict[str, TrainConfig] = {
@@ -197,13 +225,13 @@ PRESETS: dict[str, TrainConfig] = {
             max_holdout=200,
             max_epochs=3,
         ),
+        updates_per_step=1,
         mb=MBConfig(
             epoch_length=100,
             model_train_every=100,
             rollout_batch=64,
             rollout_schedule=(0, 2, 1, 3),
             model_buffer_size=2_000,
-            agent_updates_per_step=1,
         ),
     ),
     # What runs in minutes (sac) to under an hour (mbmpo, 50K hopper steps) on 2 CPU cores.
@@ -234,20 +262,130 @@ PRESETS: dict[str, TrainConfig] = {
 }
 
 
+GROUPS = ("sac", "ma", "caps", "model", "mb")
+
+
+class OverrideError(ValueError):
+    """An override naming an unknown field or giving a value of the wrong type."""
+
+
+def _field_type(config: TrainConfig, dotted: str) -> Any:
+    """The annotation of field ``group.field`` or ``field`` (OverrideError if there is none)."""
+    *group, name = dotted.split(".")
+    owner: Any = config
+    if len(group) > 1 or (group and group[0] not in GROUPS):
+        raise OverrideError(f"unknown setting {dotted!r}; groups are {', '.join(GROUPS)}")
+    if group:
+        owner = getattr(config, group[0])
+    hints = typing.get_type_hints(type(owner))
+    if name not in hints or (not group and name in GROUPS):
+        fields = sorted(f"{group[0]}.{n}" if group else n for n in hints if n not in GROUPS)
+        raise OverrideError(f"unknown setting {dotted!r}; choose from {', '.join(fields)}")
+    return hints[name]
+
+
+def _parse(text: str, hint: Any, dotted: str) -> Any:
+    """``text`` as a value of type ``hint`` (int, float, bool, str, tuples of them, X | None)."""
+    args = typing.get_args(hint)
+    if type(None) in args:  # X | None
+        if text.strip().lower() == "none":
+            return None
+        return _parse(text, next(a for a in args if a is not type(None)), dotted)
+    if typing.get_origin(hint) is tuple:
+        item = args[0]
+        parts = [p for p in text.replace("(", "").replace(")", "").split(",") if p.strip()]
+        return tuple(_parse(p.strip(), item, dotted) for p in parts)
+    try:
+        if hint is bool:
+            lowered = text.strip().lower()
+            if lowered not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError
+            return lowered in ("true", "1", "yes")
+        if hint is int:
+            return int(text)
+        if hint is float:
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+    except ValueError:
+        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[hint]
+        raise OverrideError(f"{dotted} expects {kind}, got {text!r}") from None
+    return text
+
+
+def replace_fields(config: TrainConfig, values: dict[str, Any]) -> TrainConfig:
+    """A copy with fields set by dotted name (``{"ma.alpha": 1.0, "seed": 3}``); values are
+    checked by the dataclasses' own validation (ValueError)."""
+    top: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    for dotted, value in values.items():
+        _field_type(config, dotted)
+        if "." in dotted:
+            group, name = dotted.split(".")
+            nested.setdefault(group, {})[name] = value
+        else:
+            top[dotted] = value
+    for group, fields in nested.items():
+        top[group] = dataclasses.replace(getattr(config, group), **fields)
+    return dataclasses.replace(config, **top)
+
+
+def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> TrainConfig:
+    """A copy with ``"group.field=value"`` overrides applied (OverrideError / ValueError)."""
+    values: dict[str, Any] = {}
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep:
+            raise OverrideError(f"override {item!r} must look like group.field=value")
+        values[key] = _parse(text.strip(), _field_type(config, key), key)
+    return replace_fields(config, values)
+
+
 def with_overrides(config: TrainConfig, **fields: Any) -> TrainConfig:
-    """A copy with top-level fields or ``<group>_<field>`` set (ma, sac, caps, model, mb)."""
-    top, nested = {}, {"ma": {}, "sac": {}, "caps": {}, "model": {}, "mb": {}}
+    """Keyword form of ``replace_fields`` for code: ``ma_alpha=1.0`` sets ``ma.alpha``; a
+    ``None`` value leaves the field unchanged."""
+    values = {}
     for key, value in fields.items():
         if value is None:
             continue
-        prefix = key.split("_", 1)[0]
-        if prefix in nested and key.split("_", 1)[1] in {
-            f.name for f in dataclasses.fields(getattr(config, prefix))
-        }:
-            nested[prefix][key.split("_", 1)[1]] = value
+        group, _, name = key.partition("_")
+        values[f"{group}.{name}" if group in GROUPS and name else key] = value
+    return replace_fields(config, values)
+
+
+def resolve(config: TrainConfig) -> TrainConfig:
+    """``config`` with every derived default filled in and the cross-field rules checked.
+
+    Idempotent. Raises ValueError (one line, for the user) when the fields do not fit together.
+    """
+    algo = config.algo
+    values: dict[str, Any] = {}
+    if config.task_set is None:
+        values["task_set"] = "train" if algo == "mbmpo" else "nominal"
+    if config.updates_per_step is None:
+        values["updates_per_step"] = 1 if algo == "sac" else 2
+    if config.model.num_elites is None:
+        values["model.num_elites"] = min(5, config.model.ensemble_size)
+    if config.ma.temporal_dt is None:
+        if config.ma.temporal == "rollout":
+            import minatt_jax.envs as envs
+
+            values["ma.temporal_dt"] = envs.make(config.env, config.physics).dt
         else:
-            top[key] = value
-    for prefix, values in nested.items():
-        if values:
-            top[prefix] = dataclasses.replace(getattr(config, prefix), **values)
-    return dataclasses.replace(config, **top)
+            values["ma.temporal_dt"] = 1.0
+    config = replace_fields(config, values) if values else config
+    slots, max_len = config.model.num_elites, config.mb.rollout_schedule[3]
+    if config.model_based and config.mb.rollout_batch < slots:
+        raise ValueError(
+            f"mb rollout_batch ({config.mb.rollout_batch}) must be >= model num_elites ({slots})"
+        )
+    if config.model_based and (
+        config.mb.rollout_batch // slots * max_len > config.mb.model_buffer_size // slots
+    ):
+        raise ValueError(
+            f"mb model_buffer_size ({config.mb.model_buffer_size}) must hold one rollout: "
+            f">= rollout_batch x max rollout length = {config.mb.rollout_batch * max_len}"
+        )
+    return config

@@ -37,7 +37,7 @@ class ModelConfig:
     """Ensemble settings (defaults: the paper's appendix / MBPO)."""
 
     ensemble_size: int = 7
-    num_elites: int = 5
+    num_elites: int | None = None  # None: min(5, ensemble_size) (``config.resolve``)
     hidden: tuple[int, ...] = (200, 200, 200, 200)
     lr: float = 1e-3
     batch_size: int = 256
@@ -51,7 +51,7 @@ class ModelConfig:
     improvement: float = 0.01
 
     def __post_init__(self) -> None:
-        if not 1 <= self.num_elites <= self.ensemble_size:
+        if self.num_elites is not None and not 1 <= self.num_elites <= self.ensemble_size:
             raise ValueError(
                 f"model num_elites must be in [1, ensemble_size={self.ensemble_size}], "
                 f"got {self.num_elites}"
@@ -110,7 +110,10 @@ def _inputs(obs: jax.Array, action: jax.Array) -> jax.Array:
 
 
 def make_ensemble(obs_dim: int, act_dim: int, config: ModelConfig) -> Ensemble:
-    """Builds the ensemble's ``init``, ``fit``, ``predict`` and ``step`` functions."""
+    """Builds the ensemble's ``init``, ``fit``, ``predict`` and ``step`` functions
+    (``config.num_elites`` must be set: ``minatt_jax.config.resolve`` fills it)."""
+    if config.num_elites is None:
+        raise ValueError("model num_elites is unset: resolve the configuration first")
     in_dim, out_dim = obs_dim + act_dim, obs_dim + 1
     sizes = (in_dim, *config.hidden, 2 * out_dim)
     m = config.ensemble_size

@@ -1,18 +1,14 @@
 """Deterministic evaluation episodes and the paper's control metrics.
 
-Per episode (deterministic actions u_t = tanh(mean(x_t)), steps until the first ``done``):
-
-* ``return``: sum of rewards;
-* ``feedback_norm``: mean over steps of ||du/dx||_F^2 at x_t, exact (``jax.jacfwd``), with respect
-  to the observation the policy receives (normalized, when normalization is on);
-* ``feedforward_norm``: mean over steps t >= 1 of ||(u_t - u_{t-1}) / dt||^2 (the rollout reading;
-  the paper's "action jerk" metric);
-* ``energy``: mean over steps of ||u_t||^2 (the paper's "control cost sum(u^2) per step");
-* ``jerk``: mean over steps t >= 2 of ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2;
-* ``smoothness``: the CAPS score Sm = 2 / (n f_s) * sum_i M_i f_i over the n one-sided FFT bins
-  of each action dimension's sequence (M_i = 2 |X_i| / N, f_s = 1 / dt), averaged over action
-  dimensions. Lower is smoother. This is the convention of Mysore et al. (2021); the other one
-  seen in code (M_i = |X_i| without the 2 / N) is larger by N / 4 for N-step episodes.
+Per episode (deterministic actions u_t = tanh(mean(x_t)), steps until the first ``done``), the
+metrics of ``acting.episode_metrics``: return; feedback_norm (mean ||du/dx||_F^2, exact, with
+respect to the observation the policy receives); feedforward_norm (mean ||(u_t - u_{t-1}) / dt||^2,
+the rollout reading: the paper's "action jerk"); energy (mean ||u_t||^2, the paper's "control cost
+sum(u^2) per step"); jerk (second differences); and ``smoothness``, the CAPS score
+Sm = 2 / (n f_s) * sum_i M_i f_i over the n one-sided FFT bins of each action dimension's sequence
+(M_i = 2 |X_i| / N, f_s = 1 / dt), averaged over action dimensions. Lower is smoother. This is the
+convention of Mysore et al. (2021); the other one seen in code (M_i = |X_i| without the 2 / N) is
+larger by N / 4 for N-step episodes.
 
 Metrics are mean and std over episodes; seeds are aggregated by the caller.
 """
@@ -28,6 +24,7 @@ import numpy as np
 from flax import struct
 
 import minatt_jax.envs as envs
+from minatt_jax import acting
 from minatt_jax import normalizer as obs_norm
 
 METRIC_NAMES = ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk")
@@ -51,41 +48,15 @@ def make_evaluator(
 ) -> Callable[[Any, obs_norm.Normalizer, jax.Array, envs.Task], EvalResult]:
     """A jitted ``(actor_params, normalizer, key, task_set) -> EvalResult``.
 
-    Episode i runs task ``i % num_tasks`` of the task set.
+    Episode i runs task ``i % num_tasks`` of the task set (``acting.unroll`` with the exact
+    feedback probe).
     """
     dt = env.dt
 
     def episode(params: Any, norm: obs_norm.Normalizer, key: jax.Array, task: envs.Task):
-        state = env.reset(key, task)
-
-        def body(carry, _):
-            state, alive = carry
-            x = obs_norm.normalize(norm, state.obs, normalize_obs)
-            u = control(params, x)
-            jac = jax.jacfwd(lambda y: control(params, y))(x)
-            next_state = env.step(state, u)
-            out = {
-                "u": u,
-                "feedback": jnp.sum(jnp.square(jac)),
-                "reward": next_state.reward,
-                "alive": alive,
-            }
-            return (next_state, alive * (1.0 - next_state.done)), out
-
-        _, out = jax.lax.scan(body, (state, jnp.ones(())), None, length=max_steps)
-        alive, u = out["alive"], out["u"]
-        length = jnp.sum(alive)
-        du = jnp.sum(jnp.square((u[1:] - u[:-1]) / dt), -1)
-        ddu = jnp.sum(jnp.square((u[2:] - 2 * u[1:-1] + u[:-2]) / dt**2), -1)
-        metrics = {
-            "return": jnp.sum(alive * out["reward"]),
-            "length": length,
-            "feedback_norm": jnp.sum(alive * out["feedback"]) / length,
-            "feedforward_norm": jnp.sum(alive[1:] * du) / jnp.maximum(length - 1, 1),
-            "energy": jnp.sum(alive * jnp.sum(jnp.square(u), -1)) / length,
-            "jerk": jnp.sum(alive[2:] * ddu) / jnp.maximum(length - 2, 1),
-        }
-        return metrics, u, alive
+        policy = acting.deterministic(control, params, norm, normalize_obs)
+        traj = acting.unroll(env, policy, env.reset(key, task), max_steps, probe_feedback=True)
+        return acting.episode_metrics(traj, dt), traj.action, traj.alive
 
     def evaluate(params, norm, key, task_set):
         k = envs.num_tasks(task_set)

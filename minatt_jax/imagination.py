@@ -1,9 +1,10 @@
-"""Imagined rollouts in a learned dynamics ensemble and the model buffer they fill.
+"""Imagined rollouts in a learned dynamics ensemble (the model used as an environment).
 
-Shapes are fixed: ``start_obs`` is (slots, n, obs_dim) and a rollout writes (slots, max_len, n)
-transitions with an ``alive`` mask, so a changing rollout length or early terminations never
-change a shape. The loop runs ``length`` steps (a traced value: the rollout-length schedule costs
-only the steps it uses). Slot g's trajectories stay on one member (``members[g]``, an elite) for
+The imagined transitions go into per-slot buffers (``replay.insert_slots``). Shapes are fixed:
+``start_obs`` is (slots, n, obs_dim) and a rollout writes (slots, max_len, n) transitions with
+an ``alive`` mask, so a changing rollout length or early terminations never change a shape. The
+loop runs ``length`` steps (a traced value: the rollout-length schedule costs only the steps it
+uses). Slot g's trajectories stay on one member (``members[g]``, an elite) for
 their whole length, as MB-MPO keeps each task's data on one model.
 
 Guards against an exploited model: predicted observations are clipped to ``[-obs_clip, obs_clip]``,
@@ -18,9 +19,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from minatt_jax import replay
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, member
-from minatt_jax.replay import ReplayBuffer, Transitions
+from minatt_jax.replay import Transitions
 
 # (actor_params, obs (n, obs_dim), key) -> actions (n, act_dim)
 PolicyFn = Callable[[Any, jax.Array, jax.Array], jax.Array]
@@ -83,67 +83,3 @@ def imagine(
     length = jnp.clip(length, 0, max_len)
     _, _, out, out_alive, _ = jax.lax.fori_loop(0, length, body, carry)
     return out, out_alive
-
-
-def insert_masked(buffer: ReplayBuffer, batch: Transitions, mask: jax.Array) -> ReplayBuffer:
-    """Appends the rows of ``batch`` (leading axis) where ``mask`` is 1, in order.
-
-    Fixed shapes: every row is written, but rows past the kept count write back what the buffer
-    already holds there, so nothing valid is lost. Needs ``len(mask) <= capacity``.
-    """
-    k = mask.shape[0]
-    if k > buffer.capacity:
-        raise ValueError(f"cannot insert {k} rows into a buffer of capacity {buffer.capacity}")
-    keep = mask > 0
-    order = jnp.argsort(~keep, stable=True)  # kept rows first, in their original order
-    count = jnp.sum(keep.astype(jnp.int32))
-    rows = jax.tree.map(lambda x: x[order], batch)
-    idx = (buffer.position + jnp.arange(k)) % buffer.capacity
-    use = jnp.arange(k) < count
-    data = jax.tree.map(
-        lambda store, new: store.at[idx].set(
-            jnp.where(use.reshape((-1,) + (1,) * (new.ndim - 1)), new, store[idx])
-        ),
-        buffer.data,
-        rows,
-    )
-    return ReplayBuffer(
-        data=data,
-        position=(buffer.position + count) % buffer.capacity,
-        size=jnp.minimum(buffer.size + count, buffer.capacity),
-    )
-
-
-def insert_rollouts(buffers: ReplayBuffer, rollouts: Transitions, alive: jax.Array) -> ReplayBuffer:
-    """Inserts each slot's alive transitions into that slot's buffer (buffers stacked by slot)."""
-
-    def one(buf, roll, al):
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), roll)
-        return insert_masked(buf, flat, al.reshape(-1))
-
-    return jax.vmap(one)(buffers, rollouts, alive)
-
-
-def init_slot_buffers(slots: int, capacity: int, obs_dim: int, act_dim: int) -> ReplayBuffer:
-    """``slots`` empty buffers stacked on a leading axis."""
-    one = replay.init_buffer(capacity, obs_dim, act_dim)
-    return jax.tree.map(lambda x: jnp.broadcast_to(x, (slots, *x.shape)).copy(), one)
-
-
-def sample_slot(buffers: ReplayBuffer, slot: jax.Array, key: jax.Array, n: int) -> Transitions:
-    """``n`` transitions drawn uniformly from one slot's valid rows."""
-    size = jnp.maximum(buffers.size[slot], 1)
-    idx = jax.random.randint(key, (n,), 0, size)
-    return jax.tree.map(lambda x: x[slot, idx], buffers.data)
-
-
-def sample_all_slots(buffers: ReplayBuffer, key: jax.Array, n: int) -> Transitions:
-    """``n`` transitions drawn uniformly from the valid rows of all slots together."""
-    sizes = buffers.size
-    total = jnp.maximum(jnp.sum(sizes), 1)
-    flat = jax.random.randint(key, (n,), 0, total)
-    ends = jnp.cumsum(sizes)
-    slot = jnp.searchsorted(ends, flat, side="right")
-    slot = jnp.minimum(slot, sizes.shape[0] - 1)
-    idx = flat - (ends[slot] - sizes[slot])
-    return jax.tree.map(lambda x: x[slot, idx], buffers.data)

@@ -75,9 +75,9 @@ def vpg_loss(sac: SAC, gamma: float) -> Callable[..., jax.Array]:
         adv = adv / (jnp.sqrt(jnp.sum(adv**2) / jnp.maximum(jnp.sum(alive), 1.0)) + 1e-6)
         logp = sac.log_prob(actor_params, data.obs, data.action)
         pg = -jnp.sum(alive * logp * jax.lax.stop_gradient(adv)) / jnp.maximum(jnp.sum(alive), 1.0)
-        if sac.ma_config.active:
+        if sac.regularizer.ma_config.active:
             pen, _ = ma.penalty(
-                sac.ma_config, sac.control, actor_params, data.obs[0], key,
+                sac.regularizer.ma_config, sac.control, actor_params, data.obs[0], key,
                 prev_params=agent.prev_actor_params, next_obs=data.next_obs[0],
                 update_step=agent.updates,
             )  # fmt: skip

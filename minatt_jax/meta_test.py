@@ -8,10 +8,12 @@ For every task of a task set (mass, crippled, slope, ...):
    * sac: ``updates_per_step`` SAC updates (actor, critics, entropy; MA included) on batches drawn
      from the K collected episodes;
    * mbpo / mbmpo: the dynamics ensemble is refitted once on the K episodes (starting from the
-     trained ensemble); each step imagines one-step transitions of the current policy in the
-     refitted model from collected states (one slot per elite) and applies the inner step
-     theta <- theta - beta grad L(theta) (the MAML inner step of ``maml``, beta = the run's
-     ``meta_inner_lr``) on each slot's imagined batch, averaged over slots.
+     trained ensemble); each step imagines transitions of the current policy in the refitted
+     model from collected states (one slot per elite) and applies the inner step
+     theta <- theta - beta grad L(theta) on each slot's imagined data, averaged over slots.
+     mbmpo uses its own inner step (``mb.meta_inner``: the SAC actor loss on one-step
+     transitions, or VPG on ``vpg_horizon``-step trajectories; first-order or not; beta =
+     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step.
 
 Every jitted function takes the task as data, so all tasks of a set run through one compiled
 program. Returns per task and per step: return, feedback norm, feedforward norm, energy.
@@ -28,13 +30,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import checkpoint, imagination, replay, runner
+from minatt_jax import acting, checkpoint, imagination, replay, runner
 from minatt_jax import normalizer as obs_norm
-from minatt_jax.envs.termination import TERMINATION_FNS
+from minatt_jax.dynamics_ensemble import make_ensemble
 from minatt_jax.evaluation import make_evaluator, summarize
-from minatt_jax.maml import make_meta_step
-from minatt_jax.replay import Transitions
-from minatt_jax.trainer import make_trainer
+from minatt_jax.maml import Trajectories, make_meta_step
+from minatt_jax.train import make_meta
 
 REPORTED = ("return", "feedback_norm", "feedforward_norm", "energy")
 
@@ -57,24 +58,15 @@ class MetaTestConfig:
             raise ValueError(f"adapt_steps must be >= 0, got {self.adapt_steps}")
 
 
-def _collector(env, sample, normalize: Callable, max_steps: int, shots: int):
-    """(params, norm, key, task) -> (Transitions (shots*max_steps,), valid mask)."""
+def _collector(env, policy_of: Callable, max_steps: int, shots: int):
+    """(params, norm, key, task) -> (Transitions (shots*max_steps,), valid mask): ``shots``
+    episodes of the stochastic policy (``acting.unroll``)."""
 
     def episode(params, norm, key, task):
         k_reset, k_run = jax.random.split(key)
-        state = env.reset(k_reset, task)
-
-        def body(carry, k):
-            state, alive = carry
-            action = sample(params, normalize(norm, state.obs), k)
-            nxt = env.step(state, action)
-            tr = Transitions(obs=state.obs, action=action, reward=nxt.reward, next_obs=nxt.obs,
-                             terminal=nxt.done)  # fmt: skip
-            return (nxt, alive * (1.0 - nxt.done)), (tr, alive)
-
-        keys = jax.random.split(k_run, max_steps)
-        _, (data, alive) = jax.lax.scan(body, (state, jnp.ones(())), keys)
-        return data, alive
+        traj = acting.unroll(env, policy_of(params, norm), env.reset(k_reset, task), max_steps,
+                             key=k_run)  # fmt: skip
+        return traj.transitions(), traj.alive
 
     def collect(params, norm, key, task):
         data, alive = jax.vmap(episode, in_axes=(None, None, 0, None))(
@@ -91,66 +83,80 @@ def meta_test(
     variant: str,
     settings: MetaTestConfig,
     log: Callable[[str], None] = print,
+    task_specs: tuple[str, ...] = (),
 ) -> dict[str, Any]:
-    """Meta-tests the latest checkpoint of ``run_dir`` on every task of ``variant``."""
-    config = runner.load_config(run_dir)
+    """Meta-tests the latest checkpoint of ``run_dir`` on every task of ``variant`` (or on the
+    custom ``task_specs``, one task each)."""
     try:
+        policy = checkpoint.load_policy(run_dir)
         envs.check_task_set_name(variant)
-    except envs.UnknownNameError as e:
+    except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
         raise runner.RunError(str(e)) from None
-    trainer = make_trainer(config)
-    env, sac = trainer.env, trainer.sac
-    like = trainer.init(jax.random.PRNGKey(config.seed))
+    config, env, sac = policy.config, policy.env, policy.agent
+    model_based = config.model_based
+    # The agent (and the ensemble) alone: no replay or model buffers are allocated.
+    like = {"agent": jax.eval_shape(sac.init, jax.random.PRNGKey(0))}
+    ensemble = None
+    if model_based:
+        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
+        like["model"] = jax.eval_shape(ensemble.init, jax.random.PRNGKey(0))
+    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
     try:
-        step, state = checkpoint.restore(run_dir, like)
+        step, parts = checkpoint.restore_items(run_dir, like, policy.step)
     except checkpoint.CheckpointError as e:
         raise runner.RunError(str(e)) from None
-    state = jax.device_put(state, jax.devices()[0])
-    tasks, labels = envs.task_list(env, variant)
+    trained_agent, normalizer = parts["agent"], policy.normalizer
+    try:
+        tasks, labels = envs.resolve_tasks(env, variant, task_specs)
+    except envs.TaskSpecError as e:
+        raise runner.RunError(str(e)) from None
     norm_on = config.sac.normalize_obs
     max_steps = config.max_episode_steps
 
-    def normalize(norm, obs):
-        return obs_norm.normalize(norm, obs, norm_on)
+    def normalize(obs):
+        return obs_norm.normalize(normalizer, obs, norm_on)
 
     evaluator = make_evaluator(env, sac.control, max_steps, norm_on, settings.episodes)
-    collect = _collector(env, sac.sample, normalize, max_steps, settings.shots)
+    collect = _collector(
+        env, lambda p, n: acting.stochastic(sac.sample, sac.control, p, n, norm_on), max_steps,
+        settings.shots,
+    )  # fmt: skip
     capacity = settings.shots * max_steps
     batch = config.sac.batch_size
-    model_based = config.algo != "sac"
+
+    def collected_buffer(data, valid):
+        empty = replay.init_buffer(capacity, env.observation_size, env.action_size)
+        return replay.insert_masked(empty, data, valid)
 
     if not model_based:
 
         @jax.jit
         def adapt(agent, data, valid, key):
-            buffer = imagination.insert_masked(
-                replay.init_buffer(capacity, env.observation_size, env.action_size), data, valid
-            )
+            buffer = collected_buffer(data, valid)
 
             def one(agent, k):
                 k_batch, k_sac = jax.random.split(k)
                 b = replay.sample(buffer, k_batch, batch)
-                b = b.replace(obs=normalize(state.normalizer, b.obs),
-                              next_obs=normalize(state.normalizer, b.next_obs))  # fmt: skip
+                b = b.replace(obs=normalize(b.obs), next_obs=normalize(b.next_obs))
                 return sac.update(agent, b, k_sac)[0], None
 
             keys = jax.random.split(key, settings.updates_per_step)
             return jax.lax.scan(one, agent, keys)[0]
 
     else:
-        from minatt_jax.dynamics_ensemble import make_ensemble
-
-        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
-        meta = make_meta_step(sac, config.mb.meta_inner_lr)
+        # mbmpo adapts with its own inner step (inner objective, first-order or not, beta);
+        # mbpo, which has no meta step, with the SAC inner step at the run's meta_inner_lr.
+        meta = make_meta(config, sac) if config.algo == "mbmpo" else make_meta_step(
+            sac, config.mb.meta_inner_lr
+        )  # fmt: skip
+        vpg = config.algo == "mbmpo" and config.mb.meta_inner == "vpg"
+        horizon = config.mb.vpg_horizon if vpg else 1
         slots = config.model.num_elites
-        termination = TERMINATION_FNS[config.env]
         per_slot = max(batch // slots, 16)
 
         @jax.jit
         def refit(ens_state, data, valid, key):
-            buffer = imagination.insert_masked(
-                replay.init_buffer(capacity, env.observation_size, env.action_size), data, valid
-            )
+            buffer = collected_buffer(data, valid)
             return ensemble.fit(ens_state, buffer.data, buffer.size, key)[0]
 
         @jax.jit
@@ -160,18 +166,24 @@ def meta_test(
             order = jnp.argsort(valid <= 0, stable=True)
             idx = order[jax.random.randint(k_start, (slots, per_slot), 0, count)]
             rollouts, alive = imagination.imagine(
-                ensemble, ens_state, ens_state.elites, sac.sample, agent.actor_params,
-                termination, data.obs[idx], jnp.asarray(1), 1, k_roll, config.mb.obs_clip,
+                ensemble, ens_state, ens_state.elites,
+                lambda p, obs, k: sac.sample(p, normalize(obs), k), agent.actor_params,
+                env.terminated, data.obs[idx], jnp.asarray(horizon), horizon, k_roll,
+                config.mb.obs_clip,
             )  # fmt: skip
-            first = jax.tree.map(lambda x: x[:, 0], rollouts)  # (slots, per_slot): all taken
+            rollouts = rollouts.replace(obs=normalize(rollouts.obs),
+                                        next_obs=normalize(rollouts.next_obs))  # fmt: skip
+            if vpg:
+                supports = Trajectories(data=rollouts, alive=alive)
+            else:  # one step from real states: every transition is taken
+                supports = jax.tree.map(lambda x: x[:, 0], rollouts)
 
             def inner(p, k):
                 adapted = jax.vmap(lambda s, kk: meta.adapt(p, agent, s, kk)[0])(
-                    first, jax.random.split(k, slots)
+                    supports, jax.random.split(k, slots)
                 )
                 return jax.tree.map(lambda a: jnp.mean(a, axis=0), adapted)
 
-            del alive  # one step from real states: every transition is taken
             return agent.replace(actor_params=inner(agent.actor_params, k_inner))
 
     key = jax.random.PRNGKey(settings.seed)
@@ -179,19 +191,19 @@ def meta_test(
     for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
         k_task = jax.random.fold_in(key, t)
         task_set = envs.stack_tasks([task])
-        agent = state.agent
+        agent = trained_agent
 
         def evaluate(agent, i, task_set=task_set, k_task=k_task):
-            result = evaluator(agent.actor_params, state.normalizer,
+            result = evaluator(agent.actor_params, normalizer,
                                jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
             return summarize(jax.device_get(result), env.dt)
 
         curve = [evaluate(agent, 0)]
-        data, valid = collect(agent.actor_params, state.normalizer,
+        data, valid = collect(agent.actor_params, normalizer,
                               jax.random.fold_in(k_task, 1), task)  # fmt: skip
         ens_state = None
         if model_based and settings.adapt_steps > 0:
-            ens_state = refit(state.ensemble, data, valid, jax.random.fold_in(k_task, 2))
+            ens_state = refit(parts["model"], data, valid, jax.random.fold_in(k_task, 2))
         for i in range(1, settings.adapt_steps + 1):
             k = jax.random.fold_in(k_task, 10 + i)
             if model_based:

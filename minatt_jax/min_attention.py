@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -53,8 +53,8 @@ class MAConfig:
       interval: compute the feedback term every ``interval`` updates (see the module docstring).
       interval_scaling: weight the feedback term by alpha * interval on the updates computing it.
       temporal: "parameter" (appendix reading, default) or "rollout".
-      temporal_dt: dt of the temporal term: 1 update for the parameter reading; for the rollout
-        reading the trainer passes the environment's dt.
+      temporal_dt: dt of the temporal term; None (default) = 1 update for the parameter reading,
+        the environment's dt for the rollout reading (``config.resolve`` fills it in).
       placement: "actor_loss" (default) or "reward" (subtract alpha * penalty(s) from rewards).
     """
 
@@ -66,7 +66,7 @@ class MAConfig:
     interval: int = 1
     interval_scaling: bool = True
     temporal: str = "parameter"
-    temporal_dt: float = 1.0
+    temporal_dt: float | None = None
     placement: str = "actor_loss"
 
     def __post_init__(self) -> None:
@@ -88,11 +88,19 @@ class MAConfig:
             (self.probes >= 1, f"probes must be >= 1, got {self.probes}"),
             (self.subsample >= 0, f"subsample must be >= 0, got {self.subsample}"),
             (self.interval >= 1, f"interval must be >= 1, got {self.interval}"),
-            (self.temporal_dt > 0, f"temporal_dt must be > 0, got {self.temporal_dt}"),
+            (
+                self.temporal_dt is None or self.temporal_dt > 0,
+                f"temporal_dt must be > 0, got {self.temporal_dt}",
+            ),
         ]
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)
+
+    @property
+    def dt(self) -> float:
+        """The temporal term's dt (1.0 where ``temporal_dt`` is unset)."""
+        return 1.0 if self.temporal_dt is None else self.temporal_dt
 
     @property
     def active(self) -> bool:
@@ -107,11 +115,19 @@ class MAConfig:
         return self.active and self.mode in ("full", "temporal")
 
 
-def feedback_exact(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
-    """Per-state ||du/dx||_F^2 for a batch ``obs`` (n, obs_dim), exactly (jacfwd or jacrev)."""
+def control_jacobian(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
+    """du/dx (n, act_dim, obs_dim) at each state of a batch ``obs`` (n, obs_dim), exactly."""
     jac = jax.jacfwd if mode == "jacfwd" else jax.jacrev
-    jacobians = jax.vmap(jac(lambda x: u(params, x)))(obs)  # (n, act, obs)
-    return jnp.sum(jnp.square(jacobians), axis=(-2, -1))
+    return jax.vmap(jac(lambda x: u(params, x)))(obs)
+
+
+def feedback_exact(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
+    """Per-state ||du/dx||_F^2 for a batch ``obs`` (n, obs_dim), exactly (jacfwd or jacrev).
+
+    The one function that computes the feedback norm: the penalty, evaluation, the analysis
+    and the report all call it.
+    """
+    return jnp.sum(jnp.square(control_jacobian(u, params, obs, mode)), axis=(-2, -1))
 
 
 def feedback_hutchinson(
@@ -170,7 +186,7 @@ def _temporal_per_state(
         if next_obs is None:
             raise ValueError("the rollout reading of the temporal term needs next_obs")
         other = jax.vmap(lambda x: u(params, x))(next_obs)
-    return jnp.sum(jnp.square((now - other) / config.temporal_dt), axis=-1)
+    return jnp.sum(jnp.square((now - other) / config.dt), axis=-1)
 
 
 def temporal_parameter(
@@ -307,3 +323,54 @@ def per_state_penalty(
     if config.uses_temporal:
         total = total + _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
     return config.alpha * total
+
+
+class Regularizer(NamedTuple):
+    """The smoothness penalties of a control law ``u``, as a learner needs them.
+
+    * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls)`` ->
+      (penalty, metrics): what the actor objective adds (MA with ``placement="actor_loss"`` and
+      CAPS); ``keys`` = (MA probe key, CAPS noise key); metrics named ``ma_*`` and ``caps_*``;
+    * ``shape_rewards(params, obs, next_obs, reward, key, prev_params)`` -> rewards: the batch
+      transform of ``placement="reward"`` (alpha * penalty per state subtracted, no gradient);
+      the identity otherwise.
+    """
+
+    actor_penalty: Callable[..., tuple[jax.Array, dict[str, jax.Array]]]
+    shape_rewards: Callable[..., jax.Array]
+    ma_config: MAConfig
+    caps_config: CAPSConfig
+
+
+def make_regularizer(
+    u: ControlFn, ma_config: MAConfig, caps_config: CAPSConfig | None = None
+) -> Regularizer:
+    """The one place a learner gets its MA and CAPS penalties from (see ``Regularizer``)."""
+    caps_config = caps_config or CAPSConfig()
+    in_actor = ma_config.active and ma_config.placement == "actor_loss"
+    in_reward = ma_config.active and ma_config.placement == "reward"
+
+    def actor_penalty(params, obs, next_obs, keys, prev_params=None, update_step=0, controls=None):
+        k_ma, k_caps = keys
+        total = jnp.zeros((), jnp.float32)
+        metrics: dict[str, jax.Array] = {}
+        if in_actor:
+            pen, parts = penalty(ma_config, u, params, obs, k_ma, prev_params=prev_params,
+                                 next_obs=next_obs, update_step=update_step,
+                                 controls=controls)  # fmt: skip
+            total = total + pen
+            metrics.update({f"ma_{k}": v for k, v in parts.items()})
+        if caps_config.active:
+            pen, parts = caps_penalty(caps_config, u, params, obs, next_obs, k_caps)
+            total = total + pen
+            metrics.update(parts)
+        return total, metrics
+
+    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None):
+        if not in_reward:
+            return reward
+        shaping = per_state_penalty(ma_config, u, params, obs, key, prev_params=prev_params,
+                                    next_obs=next_obs)  # fmt: skip
+        return reward - jax.lax.stop_gradient(shaping)
+
+    return Regularizer(actor_penalty, shape_rewards, ma_config, caps_config)

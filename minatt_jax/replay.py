@@ -1,4 +1,12 @@
-"""A fixed-capacity replay buffer as a pytree (ring buffer; growth never changes shapes)."""
+"""Replay buffers as pytrees and everything done to them: insert, masked insert, sample, mix.
+
+* a flat buffer (``ReplayBuffer``): one ring buffer of real transitions (fixed shapes);
+* per-slot buffers: ``slots`` ring buffers stacked on a leading axis (one per model-ensemble elite,
+  the MB-MPO tasks), filled by ``insert_slots`` and read one slot at a time (``sample_slot``) or
+  all together (``sample_all_slots``);
+* ``sample_mixed``: a batch of which ``real_count`` rows come from the real buffer and the rest
+  from the model buffers (MBPO's 5% real / 95% model agent batches).
+"""
 
 from __future__ import annotations
 
@@ -60,3 +68,92 @@ def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Transitions
     """``batch_size`` transitions drawn uniformly (with replacement) from the valid ones."""
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(buffer.size, 1))
     return jax.tree.map(lambda x: x[idx], buffer.data)
+
+
+def insert_masked(buffer: ReplayBuffer, batch: Transitions, mask: jax.Array) -> ReplayBuffer:
+    """Appends the rows of ``batch`` (leading axis) where ``mask`` is 1, in order.
+
+    Fixed shapes: every row is written, but rows past the kept count write back what the buffer
+    already holds there, so nothing valid is lost. Needs ``len(mask) <= capacity``.
+    """
+    k = mask.shape[0]
+    if k > buffer.capacity:
+        raise ValueError(f"cannot insert {k} rows into a buffer of capacity {buffer.capacity}")
+    keep = mask > 0
+    order = jnp.argsort(~keep, stable=True)  # kept rows first, in their original order
+    count = jnp.sum(keep.astype(jnp.int32))
+    rows = jax.tree.map(lambda x: x[order], batch)
+    idx = (buffer.position + jnp.arange(k)) % buffer.capacity
+    use = jnp.arange(k) < count
+    data = jax.tree.map(
+        lambda store, new: store.at[idx].set(
+            jnp.where(use.reshape((-1,) + (1,) * (new.ndim - 1)), new, store[idx])
+        ),
+        buffer.data,
+        rows,
+    )
+    return ReplayBuffer(
+        data=data,
+        position=(buffer.position + count) % buffer.capacity,
+        size=jnp.minimum(buffer.size + count, buffer.capacity),
+    )
+
+
+def insert_slots(buffers: ReplayBuffer, rollouts: Transitions, alive: jax.Array) -> ReplayBuffer:
+    """Inserts each slot's alive transitions, (slots, steps, n, ...), into that slot's buffer
+    (buffers stacked by slot): imagined rollouts keep each trajectory on its own slot."""
+
+    def one(buf, roll, al):
+        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), roll)
+        return insert_masked(buf, flat, al.reshape(-1))
+
+    return jax.vmap(one)(buffers, rollouts, alive)
+
+
+def init_slot_buffers(slots: int, capacity: int, obs_dim: int, act_dim: int) -> ReplayBuffer:
+    """``slots`` empty buffers stacked on a leading axis."""
+    one = init_buffer(capacity, obs_dim, act_dim)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (slots, *x.shape)).copy(), one)
+
+
+def sample_slot(buffers: ReplayBuffer, slot: jax.Array, key: jax.Array, n: int) -> Transitions:
+    """``n`` transitions drawn uniformly from one slot's valid rows."""
+    size = jnp.maximum(buffers.size[slot], 1)
+    idx = jax.random.randint(key, (n,), 0, size)
+    return jax.tree.map(lambda x: x[slot, idx], buffers.data)
+
+
+def sample_all_slots(buffers: ReplayBuffer, key: jax.Array, n: int) -> Transitions:
+    """``n`` transitions drawn uniformly from the valid rows of all slots together."""
+    sizes = buffers.size
+    total = jnp.maximum(jnp.sum(sizes), 1)
+    flat = jax.random.randint(key, (n,), 0, total)
+    ends = jnp.cumsum(sizes)
+    slot = jnp.searchsorted(ends, flat, side="right")
+    slot = jnp.minimum(slot, sizes.shape[0] - 1)
+    idx = flat - (ends[slot] - sizes[slot])
+    return jax.tree.map(lambda x: x[slot, idx], buffers.data)
+
+
+def concat(first: Transitions, second: Transitions) -> Transitions:
+    """Two batches as one (rows of ``first``, then rows of ``second``)."""
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b], 0), first, second)
+
+
+def sample_mixed(
+    model: ReplayBuffer,
+    real: ReplayBuffer,
+    key: jax.Array,
+    batch_size: int,
+    real_count: int,
+    slot: jax.Array | None = None,
+) -> Transitions:
+    """``batch_size - real_count`` rows from the model buffers (all slots, or one ``slot``), then
+    ``real_count`` rows from the real buffer."""
+    k_model, k_real = jax.random.split(key)
+    n_model = batch_size - real_count
+    if slot is None:
+        model_part = sample_all_slots(model, k_model, n_model)
+    else:
+        model_part = sample_slot(model, slot, k_model, n_model)
+    return concat(model_part, sample(real, k_real, real_count))

@@ -33,12 +33,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import checkpoint, runner
+from minatt_jax import acting, checkpoint, runner
 from minatt_jax import control_analysis as ca
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.config import TrainConfig
 from minatt_jax.plots import _pyplot, save_figure
-from minatt_jax.trainer import make_trainer
+from minatt_jax.train import make_agent
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
@@ -93,35 +93,26 @@ class _GroupTools:
     """Jitted functions for one group's shapes (built once, shared by its seeds)."""
 
     def __init__(self, config: TrainConfig, settings: AnalyzeConfig) -> None:
-        self.trainer = make_trainer(config)
-        env, sac = self.trainer.env, self.trainer.sac
+        env = envs.make(config.env, config.physics)
+        sac = make_agent(config, env)
         self.env, self.sac, self.config = env, sac, config
         norm_on = config.sac.normalize_obs
         steps = config.max_episode_steps
         dt = env.dt
 
         def rollout(params, norm, key, task):
-            state = env.reset(key, task)
-
-            def body(carry, _):
-                state, alive, u_prev = carry
-                x = obs_norm.normalize(norm, state.obs, norm_on)
-                u = sac.control(params, x)
-                jac = jax.jacfwd(lambda y: sac.control(params, y))(x)
-                nxt = env.step(state, u)
-                out = {
-                    "obs": state.obs,
-                    "policy_obs": x,
-                    "u": u,
-                    "alive": alive,
-                    "feedback": jnp.sum(jnp.square(jac)),
-                    "feedforward": jnp.sum(jnp.square((u - u_prev) / dt)),
-                }
-                return (nxt, alive * (1.0 - nxt.done), u), out
-
-            u0 = sac.control(params, obs_norm.normalize(norm, state.obs, norm_on))
-            _, out = jax.lax.scan(body, (state, jnp.ones(()), u0), None, length=steps)
-            return out
+            policy = acting.deterministic(sac.control, params, norm, norm_on)
+            traj = acting.unroll(env, policy, env.reset(key, task), steps, probe_feedback=True)
+            u = traj.action
+            u_prev = jnp.concatenate([u[:1], u[:-1]])
+            return {
+                "obs": traj.obs,
+                "policy_obs": traj.policy_obs,
+                "u": u,
+                "alive": traj.alive,
+                "feedback": traj.feedback,
+                "feedforward": jnp.sum(jnp.square((u - u_prev) / dt), -1),
+            }
 
         self.rollouts = jax.jit(jax.vmap(rollout, in_axes=(None, None, 0, None)))
         self.grid = ca.make_failure_grid(
@@ -130,14 +121,19 @@ class _GroupTools:
             steps=settings.grid_steps,
             rollouts=settings.grid_rollouts,
         )
-        self.like = self.trainer.init(jax.random.PRNGKey(config.seed))
+        actor = jax.eval_shape(sac.init, jax.random.PRNGKey(0)).actor_params
+        self.policy_like = (
+            jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), actor),
+            obs_norm.init_normalizer(env.observation_size),
+        )
 
     def restore(self, run_dir: str):
+        """(step, actor parameters, normalizer) of the run's latest policy (no trainer)."""
         try:
-            step, state = checkpoint.restore(run_dir, self.like)
+            policy = checkpoint.load_policy(run_dir)
         except checkpoint.CheckpointError as e:
             raise runner.RunError(str(e)) from None
-        return step, state.agent.actor_params, state.normalizer
+        return policy.step, policy.actor_params, policy.normalizer
 
 
 def _visited(tools: _GroupTools, params, norm, key, episodes: int, task) -> dict[str, np.ndarray]:
@@ -178,7 +174,7 @@ def _color_norm(finite: np.ndarray) -> Any:
 
 def _heatmap_figure(groups, states, metric, env, bins, path, title_suffix=""):
     plt = _pyplot()
-    pairs = ca.projection_indices(env.obs_names, env.name)
+    pairs = env.projection_indices()
     names = list(groups)
     fig, axes = plt.subplots(len(pairs), len(names), squeeze=False, layout="constrained",
                              figsize=(3.8 * len(names), 3.2 * len(pairs)))  # fmt: skip
@@ -335,7 +331,7 @@ def analyze(
         perturbed = envs.task_list(env, settings.perturbation)[0][0]
         pooled: list[dict[str, np.ndarray]] = []
         grid_list = []
-        (vx_lo, vx_hi), (w_lo, w_hi) = ca.FAILURE_GRID_RANGES[env.name]
+        (vx_lo, vx_hi), (w_lo, w_hi) = env.failure_grid_ranges
         vx = jnp.linspace(vx_lo, vx_hi, settings.grid)
         w = jnp.linspace(w_lo, w_hi, settings.grid)
         for n, r in enumerate(members):
@@ -360,7 +356,7 @@ def analyze(
         # Maturation: the snapshot of the first run nearest to each requested step.
         available = checkpoint.snapshot_steps(members[0].run_dir)
         maturation[g] = {}
-        like = (t.like.agent.actor_params, t.like.normalizer)
+        like = t.policy_like
         for want in settings.maturation_steps:
             if not available:
                 break
@@ -448,7 +444,7 @@ def _failure_figure(grids, vx, w, env_name, path):
 
 def _maturation_figure(maturation, env, bins, path):
     plt = _pyplot()
-    i, j = ca.projection_indices(env.obs_names, env.name)[0]
+    i, j = env.projection_indices()[0]
     names = list(maturation)
     cols = max(1, max(len(v) for v in maturation.values()))
     fig, axes = plt.subplots(len(names), cols, figsize=(3.6 * cols, 3.0 * len(names)),

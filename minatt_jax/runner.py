@@ -8,7 +8,6 @@ writes the same metrics as one never interrupted (timings aside).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import tempfile
@@ -21,53 +20,25 @@ import numpy as np
 
 import minatt_jax.envs as envs
 from minatt_jax import checkpoint
-from minatt_jax.config import TrainConfig
-from minatt_jax.evaluation import summarize
-from minatt_jax.trainer import make_trainer
+from minatt_jax.config import TrainConfig, resolve
+from minatt_jax.evaluation import make_evaluator, summarize
+from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's public API
+    RunError,
+    load_config,
+    read_metrics,
+    write_json_atomic,
+    write_text_atomic,
+)
+from minatt_jax.train import make_train
 
 TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "chunk_s", "eval_s",
                "compile_s")  # fmt: skip
-
-
-class RunError(Exception):
-    """A problem with the run directory (a user-facing error)."""
-
-
-def write_text_atomic(path: str, text: str) -> None:
-    """Writes text through a uniquely named temporary file and a rename: never half a file,
-    even with several processes writing the same path."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def write_json_atomic(path: str, obj: Any) -> None:
-    """Writes JSON atomically (see ``write_text_atomic``)."""
-    write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 def _json_value(v: Any) -> float | list:
     """A metric as JSON: a float, or a list for per-member arrays (holdout MSE, elites)."""
     v = np.asarray(v)
     return float(v) if v.ndim == 0 else v.tolist()
-
-
-def read_metrics(run_dir: str) -> list[dict[str, Any]]:
-    """The records of ``metrics.jsonl`` (an unfinished last line is ignored)."""
-    path = os.path.join(run_dir, "metrics.jsonl")
-    if not os.path.exists(path):
-        return []
-    records = []
-    with open(path) as f:
-        for line in f:
-            if line.endswith("\n"):
-                records.append(json.loads(line))
-    return records
 
 
 def _keep_metrics_until(run_dir: str, step: int) -> None:
@@ -79,20 +50,6 @@ def _keep_metrics_until(run_dir: str, step: int) -> None:
         for r in kept:
             f.write(json.dumps(r) + "\n")
     os.replace(tmp, path)
-
-
-def load_config(run_dir: str) -> TrainConfig:
-    """The configuration a run directory was made with."""
-    path = os.path.join(run_dir, "config.json")
-    if not os.path.isdir(run_dir):
-        raise RunError(f"run directory {run_dir} does not exist")
-    if not os.path.exists(path):
-        raise RunError(f"{run_dir} has no config.json: not a minatt-jax run directory")
-    try:
-        with open(path) as f:
-            return TrainConfig.from_dict(json.load(f))
-    except (json.JSONDecodeError, TypeError, KeyError, ValueError) as e:
-        raise RunError(f"{path} is corrupt or from an incompatible version ({e})") from None
 
 
 def _tensorboard(run_dir: str):
@@ -109,8 +66,20 @@ def train(
     resume: bool = False,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Trains (or resumes) the run in ``run_dir``; returns the last metrics record."""
-    trainer = make_trainer(config)
+    """Trains (or resumes) the run in ``run_dir``; returns the last metrics record.
+
+    ``config`` is resolved here (``config.resolve``) when it is not already.
+    """
+    try:
+        config = resolve(config)
+    except ValueError as e:
+        raise RunError(str(e)) from None
+    trainer = make_train(config)
+    if config.planned_steps != config.total_steps:
+        chunks = config.planned_steps // config.eval_every
+        log(f"note: {config.total_steps} steps is not a multiple of eval_every "
+            f"({config.eval_every}); training {config.planned_steps} steps "
+            f"({chunks} chunks of {config.eval_every})")  # fmt: skip
     config_path = os.path.join(run_dir, "config.json")
     if resume:
         stored = load_config(run_dir)
@@ -180,8 +149,15 @@ def train(
                 if k != "step" and not isinstance(v, list) and np.isfinite(v):
                     writer.add_scalar(k, v, step)
             writer.flush()
-        checkpoint.save(run_dir, step, state)
-        checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params, state.normalizer)
+        # The snapshot first: a crash between the two then never leaves a checkpoint without its
+        # snapshot (a snapshot without a checkpoint is rewritten identically on resume).
+        checkpoint.save_policy_snapshot(
+            run_dir, step, state.agent.actor_params, state.data.normalizer
+        )
+        try:
+            checkpoint.save(run_dir, step, state)
+        except checkpoint.CheckpointError as e:
+            raise RunError(str(e)) from None
         log(
             f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
             f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "
@@ -193,26 +169,31 @@ def train(
 
 
 def evaluate_run(
-    run_dir: str, task_set_name: str | None, episodes: int | None, seed: int = 0
+    run_dir: str,
+    task_set_name: str | None,
+    episodes: int | None,
+    seed: int = 0,
+    task_specs: tuple[str, ...] = (),
 ) -> dict[str, Any]:
-    """Evaluates the latest checkpoint of ``run_dir`` on a task set; returns the metrics."""
-
-    config = load_config(run_dir)
-    if episodes is not None:
-        config = dataclasses.replace(config, eval_episodes=episodes)
-    trainer = make_trainer(config)
+    """Evaluates the latest policy of ``run_dir`` (``checkpoint.load_policy``: no trainer, no
+    buffers) on a task set or custom tasks; returns the metrics."""
+    try:
+        policy = checkpoint.load_policy(run_dir)
+    except checkpoint.CheckpointError as e:
+        raise RunError(str(e)) from None
+    config, env = policy.config, policy.env
+    episodes = episodes or config.eval_episodes
     name = task_set_name or config.task_set
     try:
         envs.check_task_set_name(name)
-    except envs.UnknownNameError as e:
+        tasks, labels = envs.resolve_tasks(env, name, task_specs)
+    except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise RunError(str(e)) from None
-    tasks = envs.task_set(trainer.env, name)
-    like = trainer.init(jax.random.PRNGKey(config.seed))
-    try:
-        step, state = checkpoint.restore(run_dir, like)
-    except checkpoint.CheckpointError as e:
-        raise RunError(str(e)) from None
-    result = trainer.evaluate(state, jax.random.PRNGKey(seed), tasks)
-    metrics = summarize(jax.device_get(result), trainer.env.dt)
-    return {"run_dir": run_dir, "step": step, "variant": name, "episodes": config.eval_episodes,
+    evaluator = make_evaluator(env, policy.agent.control, config.max_episode_steps,
+                               config.sac.normalize_obs, episodes)  # fmt: skip
+    result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),
+                       envs.stack_tasks(tasks))  # fmt: skip
+    metrics = summarize(jax.device_get(result), env.dt)
+    variant = ";".join(labels) if task_specs else name
+    return {"run_dir": run_dir, "step": policy.step, "variant": variant, "episodes": episodes,
             **metrics}  # fmt: skip

@@ -1,9 +1,16 @@
-"""Soft actor-critic with the minimum-attention regularizer: pure init/update functions.
+"""Soft actor-critic with the minimum-attention regularizer: losses and one composed update.
 
-The actor loss is SAC's, E[ent * log pi(a|s) - min_i Q_i(s, a)], plus the MA penalty on the
-deterministic control u(s) = tanh(mean(s)) (``placement="actor_loss"``, the default), or the MA
-penalty per state is subtracted from the rewards in the critic target (``placement="reward"``).
-A CAPS penalty can be added instead of (or beside) MA as a comparison baseline.
+``make_sac`` builds three losses as pure functions of their parameters and a batch:
+
+* critic: 0.5 sum_i (Q_i(s, a) - y)^2, y = r + gamma (1 - d) (min_j Q'_j(s', a') - ent log pi);
+* actor: E[ent * log pi(a|s) - min_i Q_i(s, a)] + the regularizer's actor penalty;
+* entropy: -log(ent) * (log pi + target entropy) (automatic temperature);
+
+and composes them in ``update``: reward transform -> critic step -> actor step -> entropy and
+target-critic steps. The smoothness penalties enter through one argument, the ``Regularizer``
+that ``min_attention.make_regularizer`` builds: MA in the actor loss (``placement="actor_loss"``),
+MA as a batch transform of the rewards before the critic loss (``placement="reward"``), CAPS in
+the actor loss. MB-MPO's meta step replaces only the actor step (``maml``), reusing the rest.
 """
 
 from __future__ import annotations
@@ -55,7 +62,7 @@ class SAC(NamedTuple):
     finish_actor_step: Callable[[SACState, Any, jax.Array], SACState]
     log_prob: Callable[[Any, jax.Array, jax.Array], jax.Array]  # (params, obs, action)
     dist: Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]  # pre-tanh (mean, log_std)
-    ma_config: ma.MAConfig
+    regularizer: ma.Regularizer
 
 
 def make_sac(
@@ -66,7 +73,6 @@ def make_sac(
     caps_config: ma.CAPSConfig | None = None,
 ) -> SAC:
     """Builds a SAC agent; ``update`` takes a batch of (already normalized) transitions."""
-    caps_config = caps_config or ma.CAPSConfig()
     actor = Actor(config.hidden, act_dim, config.log_std_min, config.log_std_max)
     critic = TwinCritic(config.hidden)
     actor_tx = optax.adam(config.actor_lr)
@@ -77,6 +83,8 @@ def make_sac(
     def control(params: Any, obs: jax.Array) -> jax.Array:
         mean, _ = actor.apply(params, obs)
         return jnp.tanh(mean)
+
+    regularizer = ma.make_regularizer(control, ma_config, caps_config)
 
     def sample(params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
         mean, log_std = actor.apply(params, obs)
@@ -105,21 +113,23 @@ def make_sac(
             updates=jnp.zeros((), jnp.int32),
         )
 
+    def shape_rewards(state: SACState, batch: Transitions, key: jax.Array) -> Transitions:
+        """The reward placement of MA: a batch transform before the critic loss."""
+        _, k_shape = jax.random.split(key)
+        reward = regularizer.shape_rewards(
+            state.actor_params, batch.obs, batch.next_obs, batch.reward, k_shape,
+            state.prev_actor_params,
+        )  # fmt: skip
+        return batch.replace(reward=reward)
+
     def critic_loss(critic_params, state: SACState, batch: Transitions, key: jax.Array):
-        k_next, k_shape = jax.random.split(key)
+        k_next, _ = jax.random.split(key)
         mean, log_std = actor.apply(state.actor_params, batch.next_obs)
         next_action, next_logp = sample_tanh_gaussian(k_next, mean, log_std)
         q_next = critic.apply(state.target_critic_params, batch.next_obs, next_action)
         ent = jnp.exp(state.log_entropy_coef)
         v_next = jnp.min(q_next, axis=0) - ent * next_logp
-        reward = batch.reward
-        if ma_config.active and ma_config.placement == "reward":
-            shaping = ma.per_state_penalty(
-                ma_config, control, state.actor_params, batch.obs, k_shape,
-                prev_params=state.prev_actor_params, next_obs=batch.next_obs,
-            )  # fmt: skip
-            reward = reward - jax.lax.stop_gradient(shaping)
-        target = reward + config.gamma * (1.0 - batch.terminal) * v_next
+        target = batch.reward + config.gamma * (1.0 - batch.terminal) * v_next
         q = critic.apply(critic_params, batch.obs, batch.action)
         loss = 0.5 * jnp.mean(jnp.sum(jnp.square(q - jax.lax.stop_gradient(target)), axis=0))
         return loss, {"critic_loss": loss, "q_mean": jnp.mean(q)}
@@ -131,26 +141,20 @@ def make_sac(
         q = jnp.min(critic.apply(state.critic_params, batch.obs, action), axis=0)
         ent = jnp.exp(state.log_entropy_coef)
         sac_loss = jnp.mean(ent * logp - q)
-        loss = sac_loss
-        metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp)}
-        if ma_config.active and ma_config.placement == "actor_loss":
-            pen, parts = ma.penalty(
-                ma_config, control, actor_params, batch.obs, k_ma,
-                prev_params=state.prev_actor_params, next_obs=batch.next_obs,
-                update_step=state.updates, controls=jnp.tanh(mean),
-            )  # fmt: skip
-            loss = loss + pen
-            metrics.update({f"ma_{k}": v for k, v in parts.items()})
-        if caps_config.active:
-            pen, parts = ma.caps_penalty(
-                caps_config, control, actor_params, batch.obs, batch.next_obs, k_caps
-            )
-            loss = loss + pen
-            metrics.update(parts)
-        return loss, (metrics, jnp.mean(logp))
+        pen, reg_metrics = regularizer.actor_penalty(
+            actor_params, batch.obs, batch.next_obs, (k_ma, k_caps),
+            prev_params=state.prev_actor_params, update_step=state.updates,
+            controls=jnp.tanh(mean),
+        )  # fmt: skip
+        metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp), **reg_metrics}
+        return sac_loss + pen, (metrics, jnp.mean(logp))
+
+    def entropy_loss(log_ent: jax.Array, mean_logp: jax.Array) -> jax.Array:
+        return -log_ent * jax.lax.stop_gradient(mean_logp + target_entropy)
 
     def critic_step(state: SACState, batch: Transitions, key: jax.Array) -> tuple[SACState, dict]:
-        """One critic gradient step."""
+        """The reward transform, then one critic gradient step."""
+        batch = shape_rewards(state, batch, key)
         (_, c_metrics), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
             state.critic_params, state, batch, key
         )
@@ -169,10 +173,7 @@ def make_sac(
         else:
             actor_params, actor_opt = new_actor_params, state.actor_opt
 
-        def entropy_loss(log_ent):
-            return -log_ent * jax.lax.stop_gradient(mean_logp + target_entropy)
-
-        e_grad = jax.grad(entropy_loss)(state.log_entropy_coef)
+        e_grad = jax.grad(entropy_loss)(state.log_entropy_coef, mean_logp)
         e_updates, entropy_opt = entropy_tx.update(e_grad, state.entropy_opt)
         log_ent = optax.apply_updates(state.log_entropy_coef, e_updates)
         target = optax.incremental_update(
@@ -210,15 +211,5 @@ def make_sac(
         finish_actor_step=finish_actor_step,
         log_prob=log_prob,
         dist=lambda params, obs: actor.apply(params, obs),
-        ma_config=ma_config,
+        regularizer=regularizer,
     )
-
-
-def metric_names(ma_config: ma.MAConfig, caps_config: ma.CAPSConfig) -> tuple[str, ...]:
-    """Names of the per-update metrics ``update`` returns for these settings."""
-    names = ["critic_loss", "q_mean", "actor_loss", "entropy", "entropy_coef"]
-    if ma_config.active and ma_config.placement == "actor_loss":
-        names += ["ma_feedback", "ma_temporal", "ma_penalty"]
-    if caps_config.active:
-        names += ["caps_temporal", "caps_spatial", "caps_penalty"]
-    return tuple(names)

@@ -43,28 +43,28 @@ def test_binned_means_match_a_hand_computed_grid():
     assert np.isnan(empty).all()
 
 
-def test_failure_criterion_on_constructed_states():
+def test_failure_criterion_on_constructed_states(make_env):
     cheetah = np.zeros((5, 17), np.float32)
     cheetah[1, 0] = -0.43  # torso below -0.42
     cheetah[2, 1] = 1.2  # pitched over
     cheetah[3, 1] = -1.15
     cheetah[4, 0], cheetah[4, 1] = -0.41, 1.09  # close, but fine
-    np.testing.assert_array_equal(np.asarray(ca.failed("halfcheetah", cheetah)), [0, 1, 1, 1, 0])
+    np.testing.assert_array_equal(np.asarray(make_env("halfcheetah").failed(jnp.asarray(cheetah))), [0, 1, 1, 1, 0])
     hopper = np.zeros((3, 11), np.float32)
     hopper[:, 0] = 1.25
     hopper[1, 0] = 0.6  # fallen
     hopper[2, 1] = 0.3  # tilted
-    np.testing.assert_array_equal(np.asarray(ca.failed("hopper", hopper)), [0, 1, 1])
+    np.testing.assert_array_equal(np.asarray(make_env("hopper").failed(jnp.asarray(hopper))), [0, 1, 1])
 
 
 def test_projections_name_real_observations(make_env):
     for name in ("hopper", "halfcheetah", "walker2d", "humanoid"):
         env = make_env(name)
-        pairs = ca.projection_indices(env.obs_names, name)
-        assert len(pairs) == len(ca.PROJECTIONS[name])
+        pairs = env.projection_indices()
+        assert len(pairs) == len(env.projections) >= 2
         assert all(0 <= i < env.observation_size and 0 <= j < env.observation_size
                    for i, j in pairs)  # fmt: skip
-        (vx_lo, vx_hi), (w_lo, w_hi) = ca.FAILURE_GRID_RANGES[name]
+        (vx_lo, vx_hi), (w_lo, w_hi) = env.failure_grid_ranges
         assert vx_lo < 0.0 < vx_hi and w_lo < 0.0 < w_hi  # standing still lies inside the grid
 
 

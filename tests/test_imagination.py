@@ -10,7 +10,7 @@ import pytest
 from minatt_jax import imagination, replay
 from minatt_jax.config import MBConfig
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, ModelConfig, Normalization
-from minatt_jax.envs import termination
+from minatt_jax.envs import Hopper
 
 
 def _falling_model(nan_slot: int | None = None) -> tuple[Ensemble, EnsembleState]:
@@ -46,7 +46,7 @@ def test_rollouts_stop_at_termination_and_length():
     ens, state = _falling_model()
     members = jnp.array([0, 1], jnp.int32)
     out, alive = imagination.imagine(
-        ens, state, members, _policy, None, termination.hopper, _start(2, 4), jnp.asarray(5), 8,
+        ens, state, members, _policy, None, Hopper.terminated, _start(2, 4), jnp.asarray(5), 8,
         jax.random.PRNGKey(0),
     )  # fmt: skip
     alive = np.asarray(alive)
@@ -60,7 +60,7 @@ def test_rollouts_stop_at_termination_and_length():
     assert np.all(np.asarray(out.reward)[1, :2] == 1.0)
     # The length limit: with length 2, slot 0 stops after two steps without terminating.
     _, alive2 = imagination.imagine(
-        ens, state, members, _policy, None, termination.hopper, _start(2, 4), jnp.asarray(2), 8,
+        ens, state, members, _policy, None, Hopper.terminated, _start(2, 4), jnp.asarray(2), 8,
         jax.random.PRNGKey(0),
     )  # fmt: skip
     np.testing.assert_array_equal(np.asarray(alive2)[0, :, 0], [1, 1, 0, 0, 0, 0, 0, 0])
@@ -69,13 +69,13 @@ def test_rollouts_stop_at_termination_and_length():
 def test_non_finite_predictions_are_not_stored():
     ens, state = _falling_model(nan_slot=1)
     out, alive = imagination.imagine(
-        ens, state, jnp.array([0, 1], jnp.int32), _policy, None, termination.hopper,
+        ens, state, jnp.array([0, 1], jnp.int32), _policy, None, Hopper.terminated,
         _start(2, 3), jnp.asarray(3), 3, jax.random.PRNGKey(0),
     )  # fmt: skip
     assert np.all(np.asarray(alive)[1] == 0)  # member 1 predicts NaN: nothing alive
     assert np.all(np.isfinite(np.asarray(out.next_obs)))
-    buffers = imagination.init_slot_buffers(2, 50, 11, 3)
-    buffers = imagination.insert_rollouts(buffers, out, alive)
+    buffers = replay.init_slot_buffers(2, 50, 11, 3)
+    buffers = replay.insert_slots(buffers, out, alive)
     np.testing.assert_array_equal(np.asarray(buffers.size), [9, 0])
 
 
@@ -87,44 +87,44 @@ def test_masked_insert_keeps_order_and_old_data():
         return replay.Transitions(obs=v[:, None], action=v[:, None], reward=v,
                                   next_obs=v[:, None], terminal=jnp.zeros_like(v))  # fmt: skip
 
-    buf = imagination.insert_masked(buf, rows([1, 2, 3, 4]), jnp.array([1, 0, 1, 1]))
+    buf = replay.insert_masked(buf, rows([1, 2, 3, 4]), jnp.array([1, 0, 1, 1]))
     assert int(buf.size) == 3 and int(buf.position) == 3
     np.testing.assert_array_equal(np.asarray(buf.data.reward)[:3], [1, 3, 4])
-    buf = imagination.insert_masked(buf, rows([5, 6, 7, 8]), jnp.array([0, 1, 1, 0]))
+    buf = replay.insert_masked(buf, rows([5, 6, 7, 8]), jnp.array([0, 1, 1, 0]))
     np.testing.assert_array_equal(np.asarray(buf.data.reward), [1, 3, 4, 6, 7, 0])
     # Wrapping around: the oldest rows are overwritten, the rest kept.
-    buf = imagination.insert_masked(buf, rows([9, 10, 11, 12]), jnp.array([1, 1, 1, 0]))
+    buf = replay.insert_masked(buf, rows([9, 10, 11, 12]), jnp.array([1, 1, 1, 0]))
     np.testing.assert_array_equal(np.asarray(buf.data.reward), [10, 11, 4, 6, 7, 9])
     assert int(buf.size) == 6
     with pytest.raises(ValueError):
-        imagination.insert_masked(buf, rows(list(range(7))), jnp.ones(7))
+        replay.insert_masked(buf, rows(list(range(7))), jnp.ones(7))
 
 
 def test_slot_sampling_uses_only_valid_rows():
-    buffers = imagination.init_slot_buffers(3, 10, 1, 1)
+    buffers = replay.init_slot_buffers(3, 10, 1, 1)
     data = buffers.data.replace(reward=jnp.arange(30.0).reshape(3, 10))
     buffers = buffers.replace(data=data, size=jnp.array([2, 0, 5]))
-    got = np.asarray(imagination.sample_all_slots(buffers, jax.random.PRNGKey(0), 4000).reward)
+    got = np.asarray(replay.sample_all_slots(buffers, jax.random.PRNGKey(0), 4000).reward)
     assert set(np.unique(got)) == {0.0, 1.0, 20.0, 21.0, 22.0, 23.0, 24.0}
     assert abs(np.mean(got >= 20) - 5 / 7) < 0.03  # uniform over the 7 valid rows
-    one = np.asarray(imagination.sample_slot(buffers, 2, jax.random.PRNGKey(1), 100).reward)
+    one = np.asarray(replay.sample_slot(buffers, 2, jax.random.PRNGKey(1), 100).reward)
     assert set(np.unique(one)) <= {20.0, 21.0, 22.0, 23.0, 24.0}
 
 
 def test_hopper_termination_fixes_mbpo_parenthesis():
     ok = np.zeros(11, np.float32)
     ok[0] = 1.25
-    assert float(termination.hopper(jnp.asarray(ok))) == 0.0
+    assert float(Hopper.terminated(jnp.asarray(ok))) == 0.0
     bad = ok.copy()
     bad[5] = -150.0  # a large negative value: MBPO's np.abs(x < 100) never flags it
-    assert float(termination.hopper(jnp.asarray(bad))) == 1.0
+    assert float(Hopper.terminated(jnp.asarray(bad))) == 1.0
     assert bool(np.abs(bad[1:] < 100).all())  # the official function would have continued
 
 
 @pytest.mark.parametrize("name", ["hopper", "walker2d", "humanoid", "halfcheetah"])
 def test_termination_functions_match_the_environments(name, make_env):
     env = make_env(name)
-    fn = termination.TERMINATION_FNS[name]
+    fn = env.terminated
 
     def rollout(key):
         state = env.reset(key)

@@ -10,8 +10,8 @@ import pytest
 
 from minatt_jax import runner
 from minatt_jax.cli import main
-from minatt_jax.config import PRESETS, with_overrides
-from minatt_jax.trainer import make_trainer
+from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.train import make_train
 
 
 @pytest.mark.parametrize("algo", ["mbpo", "mbmpo", "mbmpo-vpg-trpo"])
@@ -20,14 +20,14 @@ def test_model_based_chunk_compiles_once(algo):
     algo = algo.split("-")[0]
     config = with_overrides(PRESETS["smoke"], algo=algo, task_set="train", ma_alpha=1.0,
                             mb_meta_inner=inner, mb_meta_outer=outer)  # fmt: skip
-    trainer = make_trainer(config)
+    trainer = make_train(resolve(config))
     state = trainer.init(jax.random.PRNGKey(0))
     fits, holdouts, tasks = [], [], set()
     for _ in range(3):
         state, metrics = trainer.train_chunk(state)
         fits.append(float(metrics["model_fits"]))
         holdouts.append(float(metrics["model_holdout_mse"]))
-        tasks.add(float(state.env_state.info["task"].gravity_scale[0]))
+        tasks.add(float(state.collector.env_state.info["task"].gravity_scale[0]))
     # Epochs (chunks), model refits inside them and task changes at resets: one program.
     assert trainer.train_chunk._cache_size() == 1
     assert fits == [2.0, 3.0, 3.0]  # warm-up ends at 200, refits every 100 steps
@@ -42,7 +42,7 @@ def test_model_based_chunk_compiles_once(algo):
         # The adapted policies differ from the meta policy.
         gap = jax.tree.map(
             lambda a, p: float(np.max(np.abs(np.asarray(a) - np.asarray(p)))),
-            state.adapted_actor, state.agent.actor_params,
+            state.meta, state.agent.actor_params,
         )  # fmt: skip
         assert max(jax.tree.leaves(gap)) > 0
     # Another seed, same program.
@@ -72,7 +72,6 @@ def test_mbmpo_resume_is_exact(tmp_path):
     "argv, message",
     [
         (["--algo", "mbmpo", "--elites", "9"], "num_elites"),
-        (["--algo", "mbpo", "--num-envs", "2"], "num_envs 1"),
         (["--algo", "dreamer"], "unknown algorithm"),
         (["--algo", "mbpo", "--rollout-batch", "1"], "rollout_batch"),
     ],

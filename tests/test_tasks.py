@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import copy
 
 import jax
@@ -11,8 +13,25 @@ import numpy as np
 import pytest
 
 import minatt_jax.envs as envs
-from minatt_jax.rollout import make_rollout, zero_policy
+from minatt_jax import acting
 
+
+
+class _Totals(NamedTuple):
+    episode_return: jax.Array
+    forward_reward: jax.Array
+
+
+def _rollout(env, policy, steps):
+    """(key, task) -> returns summed until the first done (``acting.unroll``)."""
+
+    def run(key, task):
+        key_reset, key_policy = jax.random.split(key)
+        traj = acting.unroll(env, policy, env.reset(key_reset, task), steps, key=key_policy)
+        forward = jnp.sum(traj.alive * traj.env_metrics["reward_forward"])
+        return _Totals(jnp.sum(traj.alive * traj.reward), forward)
+
+    return run
 
 def test_mass_scale_scales_total_mass_and_inertia(make_env):
     env = make_env("hopper")
@@ -84,8 +103,8 @@ def test_slope_tilts_gravity_and_changes_progress(make_env):
     assert np.arctan2(-g[0], -g[2]) == pytest.approx(0.10, abs=1e-6)  # uphill 0.10 rad
     # A fixed action sequence on uphill and downhill slopes and on flat ground, one vmapped call.
     tasks = envs.stack_tasks([env.nominal_task()] + [envs.select_task(slopes, i) for i in (1, 3)])
-    policy = lambda key, obs: 0.5 * jnp.sin(jnp.arange(6.0) + obs[0])  # noqa: E731
-    rollout = jax.jit(jax.vmap(make_rollout(env, policy, 60), in_axes=(None, 0)))
+    policy = acting.Policy(act=lambda obs, key: 0.5 * jnp.sin(jnp.arange(6.0) + obs[0]))
+    rollout = jax.jit(jax.vmap(_rollout(env, policy, 60), in_axes=(None, 0)))
     progress = np.asarray(rollout(jax.random.PRNGKey(0), tasks).forward_reward)
     flat, uphill, downhill = progress
     assert uphill < flat < downhill
@@ -98,7 +117,7 @@ def test_friction_changes_sliding(make_env):
     tasks = envs.stack_tasks(
         [env.make_task(slope=-0.1), env.make_task(slope=-0.1, friction_scale=0.1)]
     )
-    rollout = jax.jit(jax.vmap(make_rollout(env, zero_policy(6), 40), in_axes=(None, 0)))
+    rollout = jax.jit(jax.vmap(_rollout(env, acting.zero_policy(6), 40), in_axes=(None, 0)))
     held, slid = np.asarray(rollout(jax.random.PRNGKey(0), tasks).forward_reward) * env.dt
     assert slid > 0.5
     assert slid > 5 * abs(held)
@@ -129,9 +148,9 @@ def test_batch_of_different_tasks_in_one_call(make_env):
     env = make_env("hopper")
     mass = envs.task_set(env, "mass")
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    rollout = jax.jit(jax.vmap(make_rollout(env, zero_policy(3), 30)))
+    rollout = jax.jit(jax.vmap(_rollout(env, acting.zero_policy(3), 30)))
     out = rollout(jnp.stack([keys[0]] * 5), mass)
-    single = jax.jit(make_rollout(env, zero_policy(3), 30))(keys[0], envs.select_task(mass, 4))
+    single = jax.jit(_rollout(env, acting.zero_policy(3), 30))(keys[0], envs.select_task(mass, 4))
     np.testing.assert_allclose(out.episode_return[4], single.episode_return, rtol=1e-5)
     assert len(set(np.round(np.asarray(out.episode_return), 5))) == 5
 
@@ -147,9 +166,7 @@ def test_sample_task_draws_from_the_set(make_env):
 
 def test_fixed_key_gives_identical_rollouts(make_env):
     env = make_env("walker2d")
-    from minatt_jax.rollout import random_policy
-
-    rollout = jax.jit(make_rollout(env, random_policy(6), 50))
+    rollout = jax.jit(_rollout(env, acting.random_policy(6), 50))
     task = env.nominal_task()
     a = rollout(jax.random.PRNGKey(7), task)
     b = rollout(jax.random.PRNGKey(7), task)

@@ -17,10 +17,10 @@ import pytest
 
 from minatt_jax import checkpoint, runner
 from minatt_jax.cli import main
-from minatt_jax.config import PRESETS, SACConfig, with_overrides
+from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import summarize
-from minatt_jax.rollout import make_rollout, random_policy
-from minatt_jax.trainer import make_trainer
+from minatt_jax import acting
+from minatt_jax.train import make_train
 
 LEARN = dataclasses.replace(
     with_overrides(
@@ -32,7 +32,7 @@ LEARN = dataclasses.replace(
 
 
 def _train(config):
-    trainer = make_trainer(config)
+    trainer = make_train(resolve(config))
     state = trainer.init(jax.random.PRNGKey(config.seed))
     while int(state.env_steps) < config.total_steps:
         state, _ = trainer.train_chunk(state)
@@ -49,10 +49,15 @@ def test_sac_learns_and_ma_lowers_feedback():
     trainer.train_chunk(trainer.init(jax.random.PRNGKey(5)))
     assert trainer.train_chunk._cache_size() == 1
     # A random policy on the same 200-step episodes.
-    rollout = jax.jit(jax.vmap(make_rollout(trainer.env, random_policy(3), 200), (0, None)))
-    nominal = trainer.env.nominal_task()
-    random_returns = rollout(jax.random.split(jax.random.PRNGKey(0), 50), nominal)
-    best_random = float(np.max(random_returns.episode_return))
+    env, policy = trainer.env, acting.random_policy(3)
+
+    def random_return(key):
+        k_reset, k_act = jax.random.split(key)
+        traj = acting.unroll(env, policy, env.reset(k_reset, env.nominal_task()), 200, key=k_act)
+        return jax.numpy.sum(traj.alive * traj.reward)
+
+    random_returns = jax.jit(jax.vmap(random_return))(jax.random.split(jax.random.PRNGKey(0), 50))
+    best_random = float(np.max(random_returns))
     assert best_random < 80
     assert plain["return"] > 100 > best_random
     _, _, regularized = _train(with_overrides(LEARN, ma_alpha=1.0))
@@ -140,10 +145,15 @@ def test_corrupt_checkpoint_is_reported(tmp_path, capsys):
         for name in files:
             with open(os.path.join(root, name), "wb") as f:
                 f.write(b"garbage")
-    status, out = _run_cli(["evaluate", run], capsys)
-    assert status == 2
-    assert "corrupt" in out.err and len(out.err.strip().splitlines()) == 1
+    for argv in (["meta-test", run, "--variant", "mass"], ["inspect", run]):
+        status, out = _run_cli(argv, capsys)
+        assert status == 2, argv
+        assert "corrupt" in out.err and len(out.err.strip().splitlines()) == 1
+    # evaluate reads the step's policy snapshot, which is intact.
+    status, out = _run_cli(["evaluate", run, "--json"], capsys)
+    assert status == 0 and json.loads(out.out)["step"] == 300
     shutil.rmtree(os.path.join(run, "checkpoints"))
+    shutil.rmtree(os.path.join(run, "policy_snapshots"))
     status, out = _run_cli(["evaluate", run, "--json"], capsys)
     assert status == 2 and "no checkpoint" in out.err
     assert json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[0])["step"]

@@ -1,0 +1,213 @@
+"""One way to act in an environment: policies, the training collect step, and ``unroll``.
+
+* ``Policy``: what acts. ``prepare`` maps an observation to the policy's input (observation
+  normalization), ``act`` maps (input, key) to an action, ``control`` is the deterministic control
+  law u(x) whose Jacobian the feedback probe takes. Build one with ``deterministic``,
+  ``stochastic``, ``zero_policy`` or ``random_policy``.
+* ``unroll``: a fixed number of steps from a given state as one ``lax.scan``, returning a
+  ``Trajectory`` (with the exact ||du/dx||_F^2 per step when asked). Evaluation, meta-test data
+  collection, the report's rollouts, the failure grid and ``minatt-jax rollout`` all use it.
+  Episodes that end early keep stepping (fixed shapes) and ``alive`` masks what follows.
+* ``episode_metrics``: the paper's per-episode metrics of a trajectory.
+* ``collect_step``: one step of the training environments with the episode bookkeeping (returns,
+  lengths, the step limit, resets with a newly drawn task).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import State as EnvState
+from flax import struct
+
+from minatt_jax import min_attention as ma
+from minatt_jax import normalizer as obs_norm
+from minatt_jax.replay import Transitions
+
+
+class Policy(NamedTuple):
+    """A policy as three functions of one observation (see the module docstring)."""
+
+    act: Callable[[jax.Array, jax.Array | None], jax.Array]  # (policy input, key) -> action
+    control: Callable[[jax.Array], jax.Array] | None = None  # deterministic u(policy input)
+    prepare: Callable[[jax.Array], jax.Array] = lambda obs: obs  # observation -> policy input
+
+
+def _prepare(normalizer: obs_norm.Normalizer | None, normalize: bool) -> Callable:
+    if normalizer is None or not normalize:
+        return lambda obs: obs
+    return lambda obs: obs_norm.normalize(normalizer, obs, True)
+
+
+def deterministic(
+    control: Callable[[Any, jax.Array], jax.Array],
+    params: Any,
+    normalizer: obs_norm.Normalizer | None = None,
+    normalize: bool = False,
+) -> Policy:
+    """The deterministic control u = control(params, x) (evaluation)."""
+    u = lambda x: control(params, x)  # noqa: E731
+    return Policy(act=lambda x, key: u(x), control=u, prepare=_prepare(normalizer, normalize))
+
+
+def stochastic(
+    sample: Callable[[Any, jax.Array, jax.Array], jax.Array],
+    control: Callable[[Any, jax.Array], jax.Array],
+    params: Any,
+    normalizer: obs_norm.Normalizer | None = None,
+    normalize: bool = False,
+) -> Policy:
+    """Actions sampled from the policy distribution (data collection)."""
+    return Policy(
+        act=lambda x, key: sample(params, x, key),
+        control=lambda x: control(params, x),
+        prepare=_prepare(normalizer, normalize),
+    )
+
+
+def zero_policy(act_dim: int) -> Policy:
+    """Always commands zero torque."""
+    return Policy(act=lambda x, key: jnp.zeros((act_dim,), jnp.float32))
+
+
+def random_policy(act_dim: int) -> Policy:
+    """Uniform random actions in [-1, 1]."""
+    return Policy(act=lambda x, key: jax.random.uniform(key, (act_dim,), minval=-1.0, maxval=1.0))
+
+
+@struct.dataclass
+class Trajectory:
+    """What ``unroll`` returns, one row per step (a leading batch axis when vmapped)."""
+
+    obs: jax.Array  # (T, obs_dim) observation before the step
+    policy_obs: jax.Array  # (T, obs_dim) what the policy saw (normalized where that is on)
+    action: jax.Array  # (T, act_dim)
+    reward: jax.Array  # (T,)
+    next_obs: jax.Array  # (T, obs_dim)
+    done: jax.Array  # (T,) 1.0 where the step terminated the episode
+    alive: jax.Array  # (T,) 1.0 up to and including the episode's first done
+    env_metrics: dict[str, jax.Array]  # the environment's per-step metrics (reward terms, ...)
+    feedback: jax.Array | None = None  # (T,) ||du/dx||_F^2 at each step, when probed
+
+    def transitions(self) -> Transitions:
+        """The steps as replay transitions (``terminal`` = ``done``)."""
+        return Transitions(obs=self.obs, action=self.action, reward=self.reward,
+                           next_obs=self.next_obs, terminal=self.done)  # fmt: skip
+
+
+def unroll(
+    env: Any,
+    policy: Policy,
+    state: EnvState,
+    steps: int,
+    key: jax.Array | None = None,
+    probe_feedback: bool = False,
+) -> Trajectory:
+    """``steps`` steps of ``policy`` from ``state``; ``key`` (split per step) feeds ``act``
+    (None for deterministic policies); ``probe_feedback`` records ||du/dx||_F^2 per step."""
+    if probe_feedback and policy.control is None:
+        raise ValueError("probe_feedback needs a policy with a deterministic control")
+
+    def body(carry, k):
+        state, alive = carry
+        x = policy.prepare(state.obs)
+        action = policy.act(x, k)
+        nxt = env.step(state, action)
+        out = {
+            "obs": state.obs,
+            "policy_obs": x,
+            "action": action,
+            "reward": nxt.reward,
+            "next_obs": nxt.obs,
+            "done": nxt.done,
+            "alive": alive,
+            "env_metrics": nxt.metrics,
+        }
+        if probe_feedback:
+            out["feedback"] = feedback_at(policy.control, x)
+        return (nxt, alive * (1.0 - nxt.done)), out
+
+    keys = None if key is None else jax.random.split(key, steps)
+    _, out = jax.lax.scan(body, (state, jnp.ones((), jnp.float32)), keys, length=steps)
+    return Trajectory(**out)
+
+
+def feedback_at(u: Callable[[jax.Array], jax.Array], x: jax.Array) -> jax.Array:
+    """||du/dx||_F^2 at one policy input x, exact (``min_attention.feedback_exact``, jacfwd)."""
+    return ma.feedback_exact(lambda _, y: u(y), None, x[None], "jacfwd")[0]
+
+
+def episode_metrics(traj: Trajectory, dt: float) -> dict[str, jax.Array]:
+    """The paper's metrics of one episode (steps until the first done):
+
+    return; feedback_norm = mean ||du/dx||_F^2 (needs the probe); feedforward_norm = mean over
+    t >= 1 of ||(u_t - u_{t-1}) / dt||^2; energy = mean ||u_t||^2; jerk = mean over t >= 2 of
+    ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2.
+    """
+    alive, u = traj.alive, traj.action
+    length = jnp.sum(alive)
+    du = jnp.sum(jnp.square((u[1:] - u[:-1]) / dt), -1)
+    ddu = jnp.sum(jnp.square((u[2:] - 2 * u[1:-1] + u[:-2]) / dt**2), -1)
+    metrics = {
+        "return": jnp.sum(alive * traj.reward),
+        "length": length,
+        "feedforward_norm": jnp.sum(alive[1:] * du) / jnp.maximum(length - 1, 1),
+        "energy": jnp.sum(alive * jnp.sum(jnp.square(u), -1)) / length,
+        "jerk": jnp.sum(alive[2:] * ddu) / jnp.maximum(length - 2, 1),
+    }
+    if traj.feedback is not None:
+        metrics["feedback_norm"] = jnp.sum(alive * traj.feedback) / length
+    return metrics
+
+
+class CollectStep(NamedTuple):
+    """One step of the training environments with the episode bookkeeping done."""
+
+    transitions: Transitions  # what to store: (obs, action, reward, next_obs, terminal)
+    env_state: EnvState  # next states, with ended episodes replaced by fresh resets
+    episode_return: jax.Array  # running returns, zeroed where an episode ended
+    episode_length: jax.Array
+    ended: jax.Array  # (num_envs,) bool: terminated or reached the step limit
+    finished_return: jax.Array  # sum of the returns of the episodes that ended this step
+
+
+def collect_step(
+    env: Any,
+    env_state: EnvState,
+    action: jax.Array,
+    episode_return: jax.Array,
+    episode_length: jax.Array,
+    max_episode_steps: int,
+    reset: Callable[[jax.Array], EnvState],
+    key: jax.Array,
+) -> CollectStep:
+    """Steps every environment, ends episodes (termination or the step limit) and resets them.
+
+    ``reset(key)`` returns fresh states for all environments (new tasks included); it runs
+    under a ``lax.cond`` only when some episode ended, so resets cost nothing otherwise. Only
+    termination sets ``terminal`` (time limits are bootstrapped).
+    """
+    next_state = jax.vmap(env.step)(env_state, action)
+    length = episode_length + 1
+    terminal = next_state.done
+    ended = (terminal > 0) | (length >= max_episode_steps)
+    transitions = Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
+                              next_obs=next_state.obs, terminal=terminal)  # fmt: skip
+    ep_return = episode_return + next_state.reward
+    fresh = jax.lax.cond(jnp.any(ended), reset, lambda k: next_state, key)
+    new_state = jax.tree.map(
+        lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
+        fresh,
+        next_state,
+    )
+    return CollectStep(
+        transitions=transitions,
+        env_state=new_state,
+        episode_return=jnp.where(ended, 0.0, ep_return),
+        episode_length=jnp.where(ended, 0, length),
+        ended=ended,
+        finished_return=jnp.sum(jnp.where(ended, ep_return, 0.0)),
+    )

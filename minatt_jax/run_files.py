@@ -1,0 +1,63 @@
+"""The files of a run directory: ``config.json``, ``metrics.jsonl``, and how they are written.
+
+Everything is written atomically (a uniquely named temporary file, fsync, rename), so a crash or a
+second process never leaves half a file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from typing import Any
+
+from minatt_jax.config import TrainConfig, resolve
+
+
+class RunError(Exception):
+    """A problem with the run directory (a user-facing error)."""
+
+
+def write_text_atomic(path: str, text: str) -> None:
+    """Writes text through a uniquely named temporary file and a rename: never half a file,
+    even with several processes writing the same path."""
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_json_atomic(path: str, obj: Any) -> None:
+    """Writes JSON atomically (see ``write_text_atomic``)."""
+    write_text_atomic(path, json.dumps(obj, indent=2))
+
+
+def read_metrics(run_dir: str) -> list[dict[str, Any]]:
+    """The records of ``metrics.jsonl`` (an unfinished last line is ignored)."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    if not os.path.exists(path):
+        return []
+    records = []
+    with open(path) as f:
+        for line in f:
+            if line.endswith("\n"):
+                records.append(json.loads(line))
+    return records
+
+
+def load_config(run_dir: str) -> TrainConfig:
+    """The (resolved) configuration a run directory was made with."""
+    path = os.path.join(run_dir, "config.json")
+    if not os.path.isdir(run_dir):
+        raise RunError(f"run directory {run_dir} does not exist")
+    if not os.path.exists(path):
+        raise RunError(f"{run_dir} has no config.json: not a minatt-jax run directory")
+    try:
+        with open(path) as f:
+            return resolve(TrainConfig.from_dict(json.load(f)))
+    except (json.JSONDecodeError, TypeError, KeyError, ValueError) as e:
+        raise RunError(f"{path} is corrupt or from an incompatible version ({e})") from None
