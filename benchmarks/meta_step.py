@@ -29,8 +29,8 @@ import time
 import jax
 import jax.numpy as jnp
 
-from minatt_jax.config import PRESETS, TrainConfig, with_overrides
-from minatt_jax.trainer import make_trainer
+from minatt_jax.config import PRESETS, TrainConfig, resolve, with_overrides
+from minatt_jax.train import make_train
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results", "meta_step.json")
 
@@ -75,8 +75,8 @@ def _timed_state_fn(fn, state, key, repeat: int = 3) -> float:
 
 def measure_loop(config: TrainConfig, steps: int, breakdown: bool = False) -> dict:
     """Compile time and env steps/s of ``steps`` loop steps after the warm-up."""
-    config = dataclasses.replace(config, eval_every=steps)
-    trainer = make_trainer(config)
+    config = resolve(dataclasses.replace(config, eval_every=steps))
+    trainer = make_train(config)
     state = trainer.init(jax.random.PRNGKey(0))
     t = time.perf_counter()
     chunk = trainer.train_chunk.lower(state).compile()
@@ -113,7 +113,7 @@ def measure_loop(config: TrainConfig, steps: int, breakdown: bool = False) -> di
 
             return jax.lax.scan(body, env_state, jax.random.split(k, steps))[0]
 
-        env_s = _timed(jax.jit(env_steps), state.env_state, key)
+        env_s = _timed(jax.jit(env_steps), state.collector.env_state, key)
         fits = out["model_fits"]
         parts_s = {
             "model_training_s": fit_s * fits,
@@ -130,14 +130,11 @@ def measure_loop(config: TrainConfig, steps: int, breakdown: bool = False) -> di
 
 def mbpo_schedule(steps: int) -> TrainConfig:
     """Our mbpo on mbrl-lib's schedule (see the module docstring)."""
-    base = with_overrides(PRESETS["cpu"], env="hopper", algo="mbpo", ma_alpha=0.0)
-    return dataclasses.replace(
-        base,
-        model=dataclasses.replace(
-            base.model, max_epochs=20, patience=10**6, max_batches_per_epoch=0
-        ),  # fmt: skip
-        mb=dataclasses.replace(base.mb, agent_updates_per_step=2, rollout_batch=100_000),
-    )
+    return with_overrides(
+        PRESETS["cpu"], env="hopper", algo="mbpo", ma_alpha=0.0, updates_per_step=2,
+        model_max_epochs=20, model_patience=10**6, model_max_batches_per_epoch=0,
+        mb_rollout_batch=100_000,
+    )  # fmt: skip
 
 
 def main() -> None:

@@ -125,7 +125,7 @@ def main() -> None:
             for algo, alpha in VARIANTS:
                 config = with_overrides(
                     PRESETS["cpu"], env="hopper", algo=algo, total_steps=args.steps, seed=seed,
-                    ma_alpha=alpha, task_set="train" if algo == "mbmpo" else "nominal",
+                    ma_alpha=alpha,
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, alpha, seed))
                 write_all(args)

@@ -113,10 +113,9 @@ def main() -> None:
     if not args.collect_only:
         for seed in args.seeds:
             for algo, updates in args.variants:
-                update_field = "updates_per_step" if algo == "sac" else "mb_agent_updates_per_step"
                 config = with_overrides(
                     PRESETS["cpu"], env="hopper", algo=algo, total_steps=args.steps, seed=seed,
-                    ma_alpha=0.0, **{update_field: updates},
+                    ma_alpha=0.0, updates_per_step=updates,
                 )  # fmt: skip
                 train_or_resume(config, run_dir(args.runs, algo, updates, seed))
                 write(collect_all(args), args.steps)

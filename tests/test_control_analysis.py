@@ -49,12 +49,16 @@ def test_failure_criterion_on_constructed_states(make_env):
     cheetah[2, 1] = 1.2  # pitched over
     cheetah[3, 1] = -1.15
     cheetah[4, 0], cheetah[4, 1] = -0.41, 1.09  # close, but fine
-    np.testing.assert_array_equal(np.asarray(make_env("halfcheetah").failed(jnp.asarray(cheetah))), [0, 1, 1, 1, 0])
+    np.testing.assert_array_equal(
+        np.asarray(make_env("halfcheetah").failed(jnp.asarray(cheetah))), [0, 1, 1, 1, 0]
+    )
     hopper = np.zeros((3, 11), np.float32)
     hopper[:, 0] = 1.25
     hopper[1, 0] = 0.6  # fallen
     hopper[2, 1] = 0.3  # tilted
-    np.testing.assert_array_equal(np.asarray(make_env("hopper").failed(jnp.asarray(hopper))), [0, 1, 1])
+    np.testing.assert_array_equal(
+        np.asarray(make_env("hopper").failed(jnp.asarray(hopper))), [0, 1, 1]
+    )
 
 
 def test_projections_name_real_observations(make_env):

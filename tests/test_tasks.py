@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import copy
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -14,7 +13,6 @@ import pytest
 
 import minatt_jax.envs as envs
 from minatt_jax import acting
-
 
 
 class _Totals(NamedTuple):
@@ -32,6 +30,7 @@ def _rollout(env, policy, steps):
         return _Totals(jnp.sum(traj.alive * traj.reward), forward)
 
     return run
+
 
 def test_mass_scale_scales_total_mass_and_inertia(make_env):
     env = make_env("hopper")

@@ -15,11 +15,10 @@ import jax
 import numpy as np
 import pytest
 
-from minatt_jax import checkpoint, runner
+from minatt_jax import acting, checkpoint, runner
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import summarize
-from minatt_jax import acting
 from minatt_jax.train import make_train
 
 LEARN = dataclasses.replace(

@@ -1,0 +1,139 @@
+"""Config in one place: dotted overrides typed from the dataclasses, resolve, custom tasks."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import minatt_jax.envs as envs
+from minatt_jax.cli import main
+from minatt_jax.config import (
+    PRESETS,
+    OverrideError,
+    TrainConfig,
+    apply_overrides,
+    resolve,
+    with_overrides,
+)
+
+
+def test_dotted_overrides_are_typed_from_the_annotations():
+    c = apply_overrides(
+        PRESETS["smoke"],
+        [
+            "ma.alpha=0.5",
+            "mb.meta_inner_lr=1e-3",
+            "seed=7",
+            "sac.normalize_obs=true",
+            "sac.hidden=64,64",
+            "mb.rollout_schedule=(0, 5, 1, 4)",
+            "model.num_elites=none",
+            "ma.placement=reward",
+        ],
+    )
+    assert c.ma.alpha == 0.5 and isinstance(c.ma.alpha, float)
+    assert c.mb.meta_inner_lr == 1e-3 and c.seed == 7 and isinstance(c.seed, int)
+    assert c.sac.normalize_obs is True and c.sac.hidden == (64, 64)
+    assert c.mb.rollout_schedule == (0, 5, 1, 4) and c.model.num_elites is None
+    assert c.ma.placement == "reward"
+    # The keyword form for code sets the same fields.
+    assert with_overrides(PRESETS["smoke"], ma_alpha=0.5, mb_meta_inner_lr=1e-3).ma == (
+        apply_overrides(PRESETS["smoke"], ["ma.alpha=0.5"]).ma
+    )
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("ma.alpah=1", "unknown setting 'ma.alpah'"),
+        ("foo.alpha=1", "unknown setting 'foo.alpha'"),
+        ("alpha=1", "unknown setting 'alpha'"),
+        ("ma=1", "unknown setting 'ma'"),
+        ("ma.alpha=abc", "ma.alpha expects a finite number"),
+        ("ma.alpha=inf", "ma.alpha expects a finite number"),
+        ("seed=1.5", "seed expects an integer"),
+        ("sac.normalize_obs=maybe", "expects true or false"),
+        ("ma.alpha", "must look like group.field=value"),
+    ],
+)
+def test_bad_overrides_name_the_problem(override, message):
+    with pytest.raises(OverrideError, match=message.replace("(", r"\(")):
+        apply_overrides(PRESETS["smoke"], [override])
+
+
+def test_resolve_fills_every_derived_default_once():
+    sac = resolve(PRESETS["cpu"])
+    assert (sac.task_set, sac.updates_per_step, sac.model.num_elites) == ("nominal", 1, 5)
+    assert sac.ma.temporal_dt == 1.0 and sac.is_resolved
+    mbmpo = resolve(with_overrides(PRESETS["cpu"], algo="mbmpo", model_ensemble_size=3))
+    assert (mbmpo.task_set, mbmpo.updates_per_step, mbmpo.model.num_elites) == ("train", 2, 3)
+    assert resolve(mbmpo) == mbmpo  # idempotent
+    explicit = resolve(with_overrides(PRESETS["cpu"], algo="mbmpo", task_set="nominal"))
+    assert explicit.task_set == "nominal"  # a given value is kept
+    rollout = resolve(with_overrides(PRESETS["smoke"], ma_temporal="rollout"))
+    assert rollout.ma.temporal_dt == pytest.approx(envs.make("hopper").dt)
+    with pytest.raises(ValueError, match="rollout_batch"):
+        resolve(with_overrides(PRESETS["smoke"], algo="mbpo", mb_rollout_batch=1))
+
+
+def test_config_json_round_trip_and_the_previous_format():
+    c = resolve(with_overrides(PRESETS["smoke"], algo="mbmpo", tasks=("mass=1.5",)))
+    assert TrainConfig.from_dict(c.to_dict()) == c
+    old = c.to_dict()
+    old.pop("updates_per_step")
+    old["mb"]["agent_updates_per_step"] = 3  # the field before "one concept, one field"
+    assert TrainConfig.from_dict(old).updates_per_step == 3
+
+
+def test_custom_tasks_combine_fields(make_env):
+    hopper = make_env("hopper")
+    task, label = envs.parse_task(hopper, "mass=1.25, slope=0.12")
+    expected = hopper.make_task(mass_scale=1.25, slope=0.12)
+    for a, b in zip(jax.tree.leaves(task), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(a, b)
+    assert label == "mass=1.25,slope=0.12"
+    cheetah = make_env("halfcheetah")
+    task, _ = envs.parse_task(cheetah, "crippled=bthigh+bshin,friction=0.5,gravity=0.9")
+    assert list(np.asarray(task.actuator_scale)) == [0, 0, 1, 1, 1, 1]
+    assert float(task.friction_scale) == 0.5 and float(task.gravity_scale) == pytest.approx(0.9)
+    tasks, labels = envs.resolve_tasks(hopper, "mass", ["mass=2", "crippled=thigh_joint"])
+    assert len(tasks) == 2 and labels == ["mass=2", "crippled=thigh_joint"]
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("mass=abc", "mass must be a number"),
+        ("weight=2", "unknown field 'weight'"),
+        ("mass", "expected field=value"),
+        ("mass=-1", "must be finite and positive"),
+        ("crippled=fthigh", "hopper has no actuated joint 'fthigh'"),
+        ("slope=2", "slope must be in"),
+        ("mass=1,mass=2", "given twice"),
+    ],
+)
+def test_bad_custom_tasks_name_the_problem(spec, message, make_env):
+    with pytest.raises(envs.TaskSpecError, match=message):
+        envs.parse_task(make_env("hopper"), spec)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "--set", "ma.alpah=1"], "unknown setting 'ma.alpah'"),
+        (["train", "--set", "ma.alpha=-1"], "alpha must be >= 0"),
+        (["train", "--set", "mb.meta_inner=adam"], "meta_inner must be"),
+        (["train", "--task", "mass=abc"], "mass must be a number"),
+        (["train", "--task", "crippled=nojoint"], "no actuated joint"),
+        (["rollout", "--env", "hopper", "--task", "weight=2"], "unknown field"),
+        (["evaluate", "/nonexistent", "--task", "mass=2"], "does not exist"),
+    ],
+)
+def test_cli_config_errors_exit_2_with_one_line(argv, message, capsys, tmp_path):
+    if argv[0] == "train":
+        argv = [*argv, "--preset", "smoke", "--out", str(tmp_path / "run")]
+    status = main(argv)
+    err = capsys.readouterr().err
+    assert status == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()  # nothing written for a refused run

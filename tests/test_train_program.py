@@ -1,0 +1,106 @@
+"""One training program: every collection option in every algorithm, numbers kept, one Jacobian."""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import platform
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import minatt_jax
+from minatt_jax import acting, runner
+from minatt_jax import control_analysis as ca
+from minatt_jax import min_attention as ma
+from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
+from minatt_jax.sac import make_sac
+from minatt_jax.train import make_train
+
+DATA = pathlib.Path(__file__).parent / "data"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["sac", "mbpo", "mbmpo"])
+def test_collection_options_work_for_every_algorithm(algo):
+    """OU noise, observation normalization and several environments, honoured by each algorithm."""
+    config = resolve(with_overrides(
+        PRESETS["smoke"], algo=algo, noise="ou", sac_normalize_obs=True, num_envs=2,
+        warmup_steps=100, eval_every=200, total_steps=200,
+    ))  # fmt: skip
+    trainer = make_train(config)
+    state, metrics = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+    assert int(state.env_steps) == 200 and int(state.data.real.size) == 200  # 100 x 2 envs
+    assert float(state.data.normalizer.count) == 200  # the statistics saw every observation
+    assert np.any(np.asarray(state.collector.ou_noise) != 0)  # OU exploration state moves
+    assert float(metrics["updates"]) > 0 and np.isfinite(float(metrics["critic_loss"]))
+    if algo != "sac":
+        # Refits when the step counter crosses 100 and 200 (it moves 2 at a time).
+        assert float(metrics["model_fits"]) == 2 and float(metrics["imagined_transitions"]) > 0
+    # The policy acts on normalized observations: evaluation agrees with a manual rollout.
+    result = trainer.evaluate(state, jax.random.PRNGKey(3), trainer.task_set)
+    env, norm = trainer.env, state.data.normalizer
+    first_task = jax.tree.map(lambda t: t[0], trainer.task_set)
+    key = jax.random.split(jax.random.PRNGKey(3), config.eval_episodes)[0]
+    x = jnp.clip((env.reset(key, first_task).obs - norm.mean) / jnp.sqrt(norm.var + 1e-8), -10, 10)
+    u = trainer.sac.control(state.agent.actor_params, x)
+    np.testing.assert_allclose(result.actions[0, 0], u, rtol=1e-5, atol=1e-6)
+
+
+def _cpu_flags() -> list[str]:
+    try:
+        text = open("/proc/cpuinfo").read()
+    except OSError:
+        return []
+    line = next((x for x in text.splitlines() if x.startswith("flags")), "")
+    have = set(line.split(":", 1)[-1].split())
+    return sorted(f for f in ("avx", "avx2", "fma", "avx512f", "avx512_bf16", "amx_tile")
+                  if f in have)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["sac", "sac_ma_norm_ou"])
+def test_smoke_numbers_are_those_of_before_the_restructure(name, tmp_path, capsys):
+    """SAC runs give the metrics recorded before the one-program restructure, bit for bit
+    (where the platform matches the recording: XLA's CPU code depends on the instruction set)."""
+    reference = json.loads((DATA / f"reference_smoke_{name}.json").read_text())
+    here = (jax.__version__, platform.machine(), _cpu_flags())
+    there = (reference["jax"], reference["machine"], reference["cpu_flags"])
+    if here != there:
+        pytest.skip(f"reference recorded on {there}, this platform is {here}")
+    from minatt_jax.cli import main
+
+    out = str(tmp_path / "run")
+    assert main([*reference["argv"], "--out", out]) == 0
+    capsys.readouterr()
+    records = [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS}
+               for r in runner.read_metrics(out)]  # fmt: skip
+    assert records == reference["records"]
+
+
+def test_one_function_computes_the_feedback_norm(make_env):
+    """Evaluation's probe, the control decomposition and the penalty agree exactly, and no other
+    module takes a Jacobian of the control."""
+    env = make_env("hopper")
+    sac = make_sac(11, 3, SACConfig(hidden=(16, 16)), ma.MAConfig())
+    params = sac.init(jax.random.PRNGKey(0)).actor_params
+    policy = acting.deterministic(sac.control, params)
+    traj = jax.jit(lambda k: acting.unroll(env, policy, env.reset(k), 20, probe_feedback=True))(
+        jax.random.PRNGKey(1)
+    )
+    exact = ma.feedback_exact(sac.control, params, traj.obs, "jacfwd")
+    np.testing.assert_allclose(traj.feedback, exact, rtol=1e-6)
+    parts = ca.decompose(sac.control, params, traj.obs)
+    np.testing.assert_allclose(parts["feedback"], exact, rtol=1e-6)
+    # A central finite difference of u along one coordinate matches the Jacobian's column.
+    x, e, h = traj.obs[3], jnp.zeros(11).at[4].set(1.0), 1e-3
+    fd = (sac.control(params, x + h * e) - sac.control(params, x - h * e)) / (2 * h)
+    np.testing.assert_allclose(parts["K"][3][:, 4], fd, rtol=2e-2, atol=1e-4)
+    package = pathlib.Path(minatt_jax.__file__).parent
+    users = sorted(p.name for p in package.glob("*.py")
+                   if "jax.jacfwd" in p.read_text() or "jax.jacrev" in p.read_text())  # fmt: skip
+    assert users == ["min_attention.py"]
+    assert os.path.exists(package / "acting.py")
