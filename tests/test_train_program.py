@@ -104,3 +104,41 @@ def test_one_function_computes_the_feedback_norm(make_env):
                    if "jax.jacfwd" in p.read_text() or "jax.jacrev" in p.read_text())  # fmt: skip
     assert users == ["min_attention.py"]
     assert os.path.exists(package / "acting.py")
+
+
+def test_no_import_cycles_in_the_package():
+    """The module graph (every import, lazy ones included) has no cycle."""
+    import ast
+
+    root = pathlib.Path(minatt_jax.__file__).parent
+    files = {f"minatt_jax.{p.stem}": p for p in root.glob("*.py") if p.stem != "__init__"}
+    envs_dir = root / "envs" if (root / "envs").is_dir() else root.parent / "envs"
+    files.update({f"minatt_jax.envs.{p.stem}": p for p in envs_dir.glob("*.py")
+                  if p.stem != "__init__"})  # fmt: skip
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                targets = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            deps |= {t for t in targets if t in files and t != name}
+        graph[name] = deps
+    state: dict[str, int] = {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for dep in graph[node]:
+            if state.get(dep) == 1:
+                raise AssertionError("import cycle: " + " -> ".join([*stack, node, dep]))
+            if dep not in state:
+                visit(dep, [*stack, node])
+        state[node] = 2
+
+    for module in graph:
+        if module not in state:
+            visit(module, [])
+    assert "minatt_jax.train" in graph and "minatt_jax.trainer" not in graph
