@@ -131,6 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument("--outer", choices=("sac", "trpo"), default=None, help="mbmpo outer step")
     p_train.add_argument("--out", default=None, help="run directory (default runs/<name>)")
     p_train.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p_train.add_argument(
+        "--seeds",
+        default=None,
+        metavar="0-9",
+        help="train a population: these seeds (ranges and lists: 0-4,7)",
+    )
+    p_train.add_argument("--sweep", action="append", default=[], metavar="KEY=V1,V2",
+                         help="population: every value of a field (repeat for a grid)")  # fmt: skip
 
     p_meta = sub.add_parser("meta-test", help="adapt a trained run to each task of a variant")
     p_meta.add_argument("run_dir")
@@ -347,9 +355,62 @@ def _train_config(args: argparse.Namespace):
     return config
 
 
+def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """``train --seeds/--sweep``: every member in one program per group (``population``)."""
+    from minatt_jax import population, runner
+
+    if args.out is None:
+        raise UserError("a population needs --out DIR (one run directory per member inside)")
+    index_path = os.path.join(args.out, "population.json")
+    if args.resume:
+        if args.seeds or args.sweep:
+            raise UserError("--resume takes the members from population.json; drop --seeds/--sweep")
+        if not os.path.exists(index_path):
+            raise UserError(f"{args.out} holds no population to resume (no population.json)")
+        with open(index_path) as f:
+            index = json.load(f)
+        swept = index["swept"]
+        try:
+            members = [runner.load_config(os.path.join(args.out, m["run_dir"]))
+                       for m in index["members"]]  # fmt: skip
+        except runner.RunError as e:
+            raise UserError(str(e)) from None
+    else:
+        if args.seed is not None:
+            raise UserError("--seed names one run; a population takes --seeds (e.g. 0-9)")
+        args.seed = None
+        base = _train_config(args)
+        try:
+            seeds = population.parse_seeds(args.seeds) if args.seeds else [base.seed]
+            members = population.expand(base, seeds, args.sweep)
+        except ValueError as e:
+            raise UserError(str(e)) from None
+        swept = [sweep.partition("=")[0].strip() for sweep in args.sweep]
+    groups = population.groups(members)
+    print(f"population of {len(members)} members in {len(groups)} compiled program(s) -> "
+          f"{args.out}", flush=True)  # fmt: skip
+    try:
+        records = population.train_population(
+            members, args.out, swept, resume=args.resume, log=lambda m: print(m, flush=True)
+        )
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    print(f"\n{'member':40s} {'return':>10s} {'feedback':>10s} {'energy':>8s}")
+    for m, r in zip(members, records, strict=True):
+        if r:
+            name = population.member_name(m, swept)
+            print(f"{name:40s} {r['return']:10.2f} {r['feedback_norm']:10.3f} {r['energy']:8.3f}")
+    print(f"\nindex: {index_path}; each member's directory reads like a single run "
+          "(evaluate, meta-test, analyze)")  # fmt: skip
+    return records
+
+
 def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
 
+    population_dir = args.out and os.path.exists(os.path.join(args.out, "population.json"))
+    if args.seeds or args.sweep or (args.resume and population_dir):
+        return _cmd_train_population(args)
     config = _train_config(args)
     out = args.out or os.path.join(
         "runs", f"{config.env}_{config.algo}_alpha{config.ma.alpha:g}_seed{config.seed}"
@@ -508,6 +569,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UserError as e:
         sys.stderr.write(f"minatt-jax: error: {e}\n")
         return EXIT_USER_ERROR
+    except BrokenPipeError:  # output piped into a reader that stopped (``| head``): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 

@@ -1,8 +1,8 @@
 """Analysis of a learned control law: K(t) x + v(t), binned heatmaps, failure criteria.
 
-* ``decompose``: along a rollout, u(x_t) = K(t) x_t + v(t) with K(t) = du/dx at x_t (exact,
-  ``min_attention.control_jacobian``) and v(t) = u(x_t) - K(t) x_t, so the identity holds exactly by construction;
-  ||K(t)||_F is the feedback gain and ||v(t)||_2 the feedforward part;
+* ``decompose``: along a rollout, u(x_t) = K(t) x_t + v(t) with K(t) = du/dx at x_t
+  (exact, ``min_attention.control_jacobian``) and v(t) = u(x_t) - K(t) x_t, so the identity holds
+  exactly by construction; ||K(t)||_F is the feedback gain and ||v(t)||_2 the feedforward part;
 * ``binned_means``: mean of a per-state value over a 2D grid of a projection of visited states
   (NaN where no state fell), with counts;
 * ``make_failure_grid``: failure rates over initial (forward velocity, pitch rate) states, with

@@ -51,7 +51,7 @@ class Trajectories(NamedTuple):
 class MetaStep(NamedTuple):
     """The meta objective (for tests) and the full meta update."""
 
-    adapt: Callable[[Any, SACState, Transitions, jax.Array], tuple[Any, jax.Array]]
+    adapt: Callable[..., tuple[Any, jax.Array]]
     meta_loss: Callable[..., tuple[jax.Array, dict]]
     update: Callable[..., tuple[SACState, Any, dict]]
 
@@ -79,7 +79,7 @@ def vpg_loss(sac: SAC, gamma: float) -> Callable[..., jax.Array]:
             pen, _ = ma.penalty(
                 sac.regularizer.ma_config, sac.control, actor_params, data.obs[0], key,
                 prev_params=agent.prev_actor_params, next_obs=data.next_obs[0],
-                update_step=agent.updates,
+                update_step=agent.updates, alpha=agent.ma_alpha,
             )  # fmt: skip
             pg = pg + pen
         return pg
@@ -106,9 +106,17 @@ def make_meta_step(
     inner_objective = vpg_loss(sac, gamma) if inner == "vpg" else None
 
     def adapt(
-        actor_params: Any, agent: SACState, support: Any, key: jax.Array
+        actor_params: Any,
+        agent: SACState,
+        support: Any,
+        key: jax.Array,
+        step_size: jax.Array | float | None = None,
     ) -> tuple[Any, jax.Array]:
-        """One inner step on one task's support data; returns (theta', inner loss)."""
+        """One inner step on one task's support data; returns (theta', inner loss).
+
+        ``step_size`` (traced values allowed: populations sweep it) replaces ``inner_lr``.
+        """
+        beta = inner_lr if step_size is None else step_size
 
         def loss(p):
             if inner_objective is not None:
@@ -118,7 +126,7 @@ def make_meta_step(
         inner_loss, grads = jax.value_and_grad(loss)(actor_params)
         if first_order:
             grads = jax.lax.stop_gradient(grads)
-        adapted = jax.tree.map(lambda p, g: p - inner_lr * g, actor_params, grads)
+        adapted = jax.tree.map(lambda p, g: p - beta * g, actor_params, grads)
         return adapted, inner_loss
 
     def meta_loss(
@@ -127,13 +135,14 @@ def make_meta_step(
         supports: Transitions,
         queries: Transitions,
         key: jax.Array,
+        step_size: jax.Array | float | None = None,
     ) -> tuple[jax.Array, dict]:
         """mean_i L_i(theta'_i) over tasks (leading axis of supports and queries)."""
         tasks = queries.reward.shape[0]
 
         def task(support, query, k):
             k_in, k_out = jax.random.split(k)
-            adapted, inner_loss = adapt(actor_params, agent, support, k_in)
+            adapted, inner_loss = adapt(actor_params, agent, support, k_in, step_size)
             outer_loss, (metrics, mean_logp) = sac.actor_loss(adapted, agent, query, k_out)
             return outer_loss, (inner_loss, metrics, mean_logp, adapted)
 
@@ -155,18 +164,22 @@ def make_meta_step(
         supports: Transitions,
         queries: Transitions,
         key: jax.Array,
+        step_size: jax.Array | float | None = None,
     ) -> tuple[SACState, Any, dict]:
-        """Critic step, then the meta actor step; returns (agent, adapted params, metrics)."""
+        """Critic step, then the meta actor step; returns (agent, adapted params, metrics).
+
+        ``step_size`` replaces the inner step size ``inner_lr`` (per-member data in populations).
+        """
         k_critic, k_actor = jax.random.split(key)
         agent, c_metrics = sac.critic_step(agent, critic_batch, k_critic)
         (loss, aux), grads = jax.value_and_grad(meta_loss, has_aux=True)(
-            agent.actor_params, agent, supports, queries, k_actor
+            agent.actor_params, agent, supports, queries, k_actor, step_size
         )
         adapted = aux.pop("adapted")
         mean_logp = aux.pop("mean_logp")
         if outer == "trpo":
             new_params, trpo_metrics = trust_region_step(
-                agent, supports, queries, k_actor, grads, loss
+                agent, supports, queries, k_actor, grads, loss, step_size
             )
             aux.update(trpo_metrics)
             agent = sac.finish_actor_step(agent, None, mean_logp, new_actor_params=new_params)
@@ -175,7 +188,7 @@ def make_meta_step(
         metrics = {**c_metrics, **aux, "entropy_coef": jnp.exp(agent.log_entropy_coef)}
         return agent, adapted, metrics
 
-    def trust_region_step(agent, supports, queries, key, grads, loss):
+    def trust_region_step(agent, supports, queries, key, grads, loss, step_size=None):
         """TRPO on the meta objective (see the module docstring)."""
         old = agent.actor_params
         flat_old, unravel = ravel_pytree(old)
@@ -208,7 +221,7 @@ def make_meta_step(
         full_step = -jnp.sqrt(2.0 * max_kl / jnp.maximum(shs, 1e-12)) * direction
 
         def objective(flat):
-            return meta_loss(unravel(flat), agent, supports, queries, key)[0]
+            return meta_loss(unravel(flat), agent, supports, queries, key, step_size)[0]
 
         def try_step(j, carry):
             accepted, best = carry

@@ -225,8 +225,12 @@ def penalty(
     next_obs: jax.Array | None = None,
     update_step: jax.Array | int = 0,
     controls: jax.Array | None = None,
+    alpha: jax.Array | float | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted MA penalty and its parts ``{'feedback', 'temporal', 'penalty'}``.
+
+    ``alpha`` (a traced value allowed) replaces ``config.alpha`` as the weight: populations sweep
+    it as data. Which terms are computed stays a property of the config (``config.active``).
 
     ``prev_params`` is needed for the parameter reading of the temporal term, ``next_obs`` for the
     rollout reading; ``update_step`` selects the updates that compute the feedback term when
@@ -235,6 +239,7 @@ def penalty(
     """
     zero = jnp.zeros((), jnp.float32)
     feedback, temporal, total = zero, zero, zero
+    alpha = config.alpha if alpha is None else alpha
     key_probe = key
     k = config.subsample
     if 0 < k < obs.shape[0]:
@@ -252,18 +257,18 @@ def penalty(
 
         if config.interval == 1:
             feedback = feedback_fn()
-            weight = config.alpha
+            weight = alpha
         else:
             due = jnp.asarray(update_step) % config.interval == 0
             feedback = jax.lax.cond(due, feedback_fn, lambda: zero)
             scale = config.interval if config.interval_scaling else 1
-            weight = jnp.where(due, config.alpha * scale, 0.0)
+            weight = jnp.where(due, alpha * scale, 0.0)
         total = total + weight * feedback
     if config.uses_temporal:
         temporal = jnp.mean(
             _temporal_per_state(config, u, params, obs, prev_params, next_obs, controls)
         )
-        total = total + config.alpha * temporal
+        total = total + alpha * temporal
     return total, {"feedback": feedback, "temporal": temporal, "penalty": total}
 
 
@@ -312,8 +317,10 @@ def per_state_penalty(
     *,
     prev_params: Any = None,
     next_obs: jax.Array | None = None,
+    alpha: jax.Array | float | None = None,
 ) -> jax.Array:
-    """alpha * (feedback + temporal) for every state of the batch (no subsample, no interval).
+    """alpha * (feedback + temporal) for every state of the batch (no subsample, no interval);
+    ``alpha`` replaces ``config.alpha`` when given.
 
     Used by the reward-shaping placement, which subtracts it from each transition's reward.
     """
@@ -322,18 +329,21 @@ def per_state_penalty(
         total = total + _feedback_per_state(config, u, params, obs, key)
     if config.uses_temporal:
         total = total + _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
-    return config.alpha * total
+    return (config.alpha if alpha is None else alpha) * total
 
 
 class Regularizer(NamedTuple):
     """The smoothness penalties of a control law ``u``, as a learner needs them.
 
-    * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls)`` ->
+    * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls, alpha)`` ->
       (penalty, metrics): what the actor objective adds (MA with ``placement="actor_loss"`` and
       CAPS); ``keys`` = (MA probe key, CAPS noise key); metrics named ``ma_*`` and ``caps_*``;
-    * ``shape_rewards(params, obs, next_obs, reward, key, prev_params)`` -> rewards: the batch
-      transform of ``placement="reward"`` (alpha * penalty per state subtracted, no gradient);
+    * ``shape_rewards(params, obs, next_obs, reward, key, prev_params, alpha)`` -> rewards: the
+      batch transform of ``placement="reward"`` (alpha * penalty per state subtracted, no gradient);
       the identity otherwise.
+
+    ``alpha`` (traced values allowed) replaces the config's weight: a population's members carry
+    their own alpha as data in the agent state.
     """
 
     actor_penalty: Callable[..., tuple[jax.Array, dict[str, jax.Array]]]
@@ -350,14 +360,16 @@ def make_regularizer(
     in_actor = ma_config.active and ma_config.placement == "actor_loss"
     in_reward = ma_config.active and ma_config.placement == "reward"
 
-    def actor_penalty(params, obs, next_obs, keys, prev_params=None, update_step=0, controls=None):
+    def actor_penalty(
+        params, obs, next_obs, keys, prev_params=None, update_step=0, controls=None, alpha=None
+    ):
         k_ma, k_caps = keys
         total = jnp.zeros((), jnp.float32)
         metrics: dict[str, jax.Array] = {}
         if in_actor:
             pen, parts = penalty(ma_config, u, params, obs, k_ma, prev_params=prev_params,
                                  next_obs=next_obs, update_step=update_step,
-                                 controls=controls)  # fmt: skip
+                                 controls=controls, alpha=alpha)  # fmt: skip
             total = total + pen
             metrics.update({f"ma_{k}": v for k, v in parts.items()})
         if caps_config.active:
@@ -366,11 +378,11 @@ def make_regularizer(
             metrics.update(parts)
         return total, metrics
 
-    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None):
+    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None, alpha=None):
         if not in_reward:
             return reward
         shaping = per_state_penalty(ma_config, u, params, obs, key, prev_params=prev_params,
-                                    next_obs=next_obs)  # fmt: skip
+                                    next_obs=next_obs, alpha=alpha)  # fmt: skip
         return reward - jax.lax.stop_gradient(shaping)
 
     return Regularizer(actor_penalty, shape_rewards, ma_config, caps_config)

@@ -41,7 +41,7 @@ def _json_value(v: Any) -> float | list:
     return float(v) if v.ndim == 0 else v.tolist()
 
 
-def _keep_metrics_until(run_dir: str, step: int) -> None:
+def keep_metrics_until(run_dir: str, step: int) -> None:
     """Rewrites metrics.jsonl (atomically) without records after ``step``."""
     kept = [r for r in read_metrics(run_dir) if r["step"] <= step]
     path = os.path.join(run_dir, "metrics.jsonl")
@@ -52,12 +52,50 @@ def _keep_metrics_until(run_dir: str, step: int) -> None:
     os.replace(tmp, path)
 
 
-def _tensorboard(run_dir: str):
+def tensorboard(run_dir: str):
+    """A TensorBoard writer for the run, or None without tensorboardX."""
     try:
         from tensorboardX import SummaryWriter
     except ImportError:  # optional: metrics.jsonl holds the same numbers
         return None
     return SummaryWriter(os.path.join(run_dir, "tensorboard"))
+
+
+def make_record(
+    step: int, evaluation: dict, train_metrics: dict, timings: dict, steps_per_chunk: int
+) -> dict[str, Any]:
+    """One ``metrics.jsonl`` record: evaluation, chunk metrics, rates and timings."""
+    chunk_s = timings["chunk_s"]
+    record = {
+        "step": step,
+        **evaluation,
+        **{k: _json_value(v) for k, v in train_metrics.items()},
+        "env_steps_per_s": steps_per_chunk / chunk_s,
+        "updates_per_s": float(train_metrics["updates"]) / chunk_s,
+    }
+    if "imagined_transitions" in train_metrics:
+        record["imagined_per_s"] = float(train_metrics["imagined_transitions"]) / chunk_s
+    return {**record, **timings}
+
+
+def write_step(run_dir: str, step: int, state: Any, record: dict, writer: Any) -> None:
+    """Appends the record (metrics.jsonl, TensorBoard), then the policy snapshot, then the
+    checkpoint of ``state``: a crash between the two never leaves a checkpoint without its
+    snapshot (a snapshot without a checkpoint is rewritten identically on resume)."""
+    with open(os.path.join(run_dir, "metrics.jsonl"), "a") as f:
+        f.write(json.dumps(record) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    if writer is not None:
+        for k, v in record.items():
+            if k != "step" and not isinstance(v, list) and np.isfinite(v):
+                writer.add_scalar(k, v, step)
+        writer.flush()
+    checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params, state.data.normalizer)
+    try:
+        checkpoint.save(run_dir, step, state)
+    except checkpoint.CheckpointError as e:
+        raise RunError(str(e)) from None
 
 
 def train(
@@ -94,7 +132,7 @@ def train(
                 raise RunError(str(e)) from None
             state = jax.device_put(state, jax.devices()[0])
         # Records after the checkpoint are written again, identically, by the rerun.
-        _keep_metrics_until(run_dir, step)
+        keep_metrics_until(run_dir, step)
         log(f"resumed {run_dir} at env step {step}")
     else:
         if os.path.exists(config_path):
@@ -106,7 +144,7 @@ def train(
     chunk = trainer.train_chunk.lower(state).compile()
     compile_s = time.perf_counter() - t0
     log(f"compiled the training step in {compile_s:.1f} s")
-    writer = _tensorboard(run_dir)
+    writer = tensorboard(run_dir)
     eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
     record: dict[str, Any] = {}
     start = time.perf_counter()
@@ -124,40 +162,11 @@ def train(
         # The latest chunk's rate: the first chunks are faster (warm-up steps make no updates).
         chunks_left = -(-(config.total_steps - step) // trainer.steps_per_chunk)
         remaining = chunks_left * (chunk_s + eval_s)
-        record = {
-            "step": step,
-            **evaluation,
-            **{k: _json_value(v) for k, v in jax.device_get(train_metrics).items()},
-            "env_steps_per_s": trainer.steps_per_chunk / chunk_s,
-            "updates_per_s": float(train_metrics["updates"]) / chunk_s,
-            **(
-                {"imagined_per_s": float(train_metrics["imagined_transitions"]) / chunk_s}
-                if "imagined_transitions" in train_metrics
-                else {}
-            ),
-            "chunk_s": chunk_s,
-            "eval_s": eval_s,
-            "compile_s": compile_s,
-            "wall_s": elapsed,
-        }
-        with open(os.path.join(run_dir, "metrics.jsonl"), "a") as f:
-            f.write(json.dumps(record) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        if writer is not None:
-            for k, v in record.items():
-                if k != "step" and not isinstance(v, list) and np.isfinite(v):
-                    writer.add_scalar(k, v, step)
-            writer.flush()
-        # The snapshot first: a crash between the two then never leaves a checkpoint without its
-        # snapshot (a snapshot without a checkpoint is rewritten identically on resume).
-        checkpoint.save_policy_snapshot(
-            run_dir, step, state.agent.actor_params, state.data.normalizer
-        )
-        try:
-            checkpoint.save(run_dir, step, state)
-        except checkpoint.CheckpointError as e:
-            raise RunError(str(e)) from None
+        timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
+                   "wall_s": elapsed}  # fmt: skip
+        record = make_record(step, evaluation, jax.device_get(train_metrics), timings,
+                             trainer.steps_per_chunk)  # fmt: skip
+        write_step(run_dir, step, state, record, writer)
         log(
             f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
             f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "

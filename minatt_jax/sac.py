@@ -47,6 +47,7 @@ class SACState:
     entropy_opt: Any
     prev_actor_params: Any  # parameters before the last actor update (MA temporal term)
     updates: jax.Array
+    ma_alpha: jax.Array  # the MA weight: data, so a population sweeps it without recompiling
 
 
 class SAC(NamedTuple):
@@ -75,9 +76,11 @@ def make_sac(
     """Builds a SAC agent; ``update`` takes a batch of (already normalized) transitions."""
     actor = Actor(config.hidden, act_dim, config.log_std_min, config.log_std_max)
     critic = TwinCritic(config.hidden)
-    actor_tx = optax.adam(config.actor_lr)
-    critic_tx = optax.adam(config.critic_lr)
-    entropy_tx = optax.adam(config.entropy_lr)
+    # Learning rates live in the optimizer states (data): a population sweeps them per member.
+    adam = optax.inject_hyperparams(optax.adam)
+    actor_tx = adam(learning_rate=config.actor_lr)
+    critic_tx = adam(learning_rate=config.critic_lr)
+    entropy_tx = adam(learning_rate=config.entropy_lr)
     target_entropy = -float(act_dim) if config.target_entropy is None else config.target_entropy
 
     def control(params: Any, obs: jax.Array) -> jax.Array:
@@ -111,6 +114,7 @@ def make_sac(
             entropy_opt=entropy_tx.init(log_ent),
             prev_actor_params=jax.tree.map(jnp.copy, actor_params),
             updates=jnp.zeros((), jnp.int32),
+            ma_alpha=jnp.asarray(ma_config.alpha, jnp.float32),
         )
 
     def shape_rewards(state: SACState, batch: Transitions, key: jax.Array) -> Transitions:
@@ -118,7 +122,7 @@ def make_sac(
         _, k_shape = jax.random.split(key)
         reward = regularizer.shape_rewards(
             state.actor_params, batch.obs, batch.next_obs, batch.reward, k_shape,
-            state.prev_actor_params,
+            state.prev_actor_params, state.ma_alpha,
         )  # fmt: skip
         return batch.replace(reward=reward)
 
@@ -144,7 +148,7 @@ def make_sac(
         pen, reg_metrics = regularizer.actor_penalty(
             actor_params, batch.obs, batch.next_obs, (k_ma, k_caps),
             prev_params=state.prev_actor_params, update_step=state.updates,
-            controls=jnp.tanh(mean),
+            controls=jnp.tanh(mean), alpha=state.ma_alpha,
         )  # fmt: skip
         metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp), **reg_metrics}
         return sac_loss + pen, (metrics, jnp.mean(logp))

@@ -70,6 +70,14 @@ class Data:
 
 
 @struct.dataclass
+class MetaState:
+    """MB-MPO's adapted policies and its inner step size (data: populations sweep it)."""
+
+    adapted: Any  # theta'_i per slot (slots, ...) from the last meta step
+    inner_lr: jax.Array  # beta of theta' = theta - beta grad L_i(theta)
+
+
+@struct.dataclass
 class TrainState:
     """Everything a run needs to continue exactly: saved whole, item by item, in checkpoints."""
 
@@ -77,7 +85,7 @@ class TrainState:
     collector: Collector
     data: Data
     model: EnsembleState | None  # the dynamics ensemble (mbpo, mbmpo)
-    meta: Any  # mbmpo: adapted actor parameters theta'_i per slot (slots, ...); else None
+    meta: MetaState | None  # mbmpo only
     rng: jax.Array
     env_steps: jax.Array  # total env steps taken (all environments)
     imagined: jax.Array  # total imagined transitions stored
@@ -174,11 +182,12 @@ def make_train(config: TrainConfig) -> Trainer:
         else:
             (k_agent, k_env, k_run), k_model = jax.random.split(key, 3), None
         agent = sac.init(k_agent)
-        adapted = None
+        meta_state = None
         if meta:
             adapted = jax.tree.map(
                 lambda p: jnp.broadcast_to(p, (slots, *p.shape)), agent.actor_params
             )
+            meta_state = MetaState(adapted, jnp.asarray(mb.meta_inner_lr, jnp.float32))
         model_buffer = None
         if model_based:
             capacity = mb.model_buffer_size // slots
@@ -198,7 +207,7 @@ def make_train(config: TrainConfig) -> Trainer:
                 normalizer=obs_norm.init_normalizer(obs_dim),
             ),
             model=ensemble.init(k_model) if model_based else None,
-            meta=adapted,
+            meta=meta_state,
             rng=k_run,
             env_steps=jnp.zeros((), jnp.int32),
             imagined=jnp.zeros((), jnp.int32),
@@ -213,13 +222,14 @@ def make_train(config: TrainConfig) -> Trainer:
         return jax.device_put(jax.tree.map(lambda x: jnp.array(x, copy=True), ts), jax.devices()[0])
 
     # ---- collect --------------------------------------------------------------------------
-    def act(ts: TrainState, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Exploration actions for every environment and the new OU state."""
+    def act(ts: TrainState, key: jax.Array, steps: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Exploration actions for every environment and the new OU state (``steps``: env steps
+        taken before this one, the unbatched schedule counter)."""
         k_random, k_policy, k_ou = jax.random.split(key, 3)
         c = ts.collector
         obs = normalize(ts.data.normalizer, c.env_state.obs)
         if meta:  # each episode acts with its slot's adapted policy
-            params = jax.tree.map(lambda p: p[c.episode_slot], ts.meta)
+            params = jax.tree.map(lambda p: p[c.episode_slot], ts.meta.adapted)
             axis = 0
         else:
             params, axis = ts.agent.actor_params, None
@@ -232,14 +242,14 @@ def make_train(config: TrainConfig) -> Trainer:
             keys = jax.random.split(k_policy, n)
             policy_action = jax.vmap(sac.sample, in_axes=(axis, 0, 0))(params, obs, keys)
         random_action = jax.random.uniform(k_random, (n, act_dim), minval=-1.0, maxval=1.0)
-        warm = ts.env_steps < config.warmup_steps
+        warm = steps < config.warmup_steps
         return jnp.where(warm, random_action, policy_action), ou
 
     def collect(
-        ts: TrainState, keys: tuple[jax.Array, ...]
+        ts: TrainState, keys: tuple[jax.Array, ...], steps: jax.Array
     ) -> tuple[TrainState, acting.CollectStep]:
         k_act, k_reset, k_slot = keys
-        action, ou = act(ts, k_act)
+        action, ou = act(ts, k_act, steps)
         c = ts.collector
         s = acting.collect_step(env, c.env_state, action, c.episode_return, c.episode_length,
                                 config.max_episode_steps, reset_envs, k_reset)  # fmt: skip
@@ -273,23 +283,28 @@ def make_train(config: TrainConfig) -> Trainer:
         model, _ = ensemble.fit(ts.model, ts.data.real.data, ts.data.real.size, key)
         return ts.replace(model=model)
 
-    def imagine(ts: TrainState, key: jax.Array) -> tuple[TrainState, jax.Array]:
+    def imagine(
+        ts: TrainState, key: jax.Array, steps: jax.Array | None = None
+    ) -> tuple[TrainState, jax.Array]:
+        steps = ts.env_steps if steps is None else steps
         k_start, k_roll = jax.random.split(key)
         real = ts.data.real
         idx = jax.random.randint(k_start, (slots, per_slot), 0, jnp.maximum(real.size, 1))
         rollouts, alive = imagination.imagine(
             ensemble, ts.model, ts.model.elites, imagined_policy(ts.data.normalizer),
             ts.agent.actor_params, env.terminated, real.data.obs[idx],
-            rollout_length(ts.env_steps), max_len, k_roll, mb.obs_clip,
+            rollout_length(steps), max_len, k_roll, mb.obs_clip,
         )  # fmt: skip
         model_buffer = replay.insert_slots(ts.data.model, rollouts, alive)
         count = jnp.sum(alive).astype(jnp.int32)
         ts = ts.replace(data=ts.data.replace(model=model_buffer), imagined=ts.imagined + count)
         return ts, count
 
-    def model_phase(ts: TrainState, key: jax.Array) -> tuple[TrainState, jax.Array]:
+    def model_phase(
+        ts: TrainState, key: jax.Array, steps: jax.Array
+    ) -> tuple[TrainState, jax.Array]:
         k_fit, k_imagine = jax.random.split(key)
-        return imagine(refit(ts, k_fit), k_imagine)
+        return imagine(refit(ts, k_fit), k_imagine, steps)
 
     def model_due(steps: jax.Array) -> jax.Array:
         """A refit is due when the last step crossed a multiple of ``model_train_every``."""
@@ -335,20 +350,28 @@ def make_train(config: TrainConfig) -> Trainer:
             agent, metrics = sac.update(ts.agent, b, k_update)
             return ts.replace(agent=agent), metrics
         supports, queries = meta_tasks(ts, k_tasks)
-        agent, adapted, metrics = meta_step.update(ts.agent, b, supports, queries, k_update)
-        return ts.replace(agent=agent, meta=adapted), metrics
+        agent, adapted, metrics = meta_step.update(
+            ts.agent, b, supports, queries, k_update, ts.meta.inner_lr
+        )
+        return ts.replace(agent=agent, meta=ts.meta.replace(adapted=adapted)), metrics
 
-    def updates_ready(ts: TrainState) -> jax.Array:
-        warm = ts.env_steps >= config.warmup_steps
+    # The schedule is a function of the env-step counter alone, so that in a population (all
+    # members at the same step) every predicate is unbatched and its lax.cond stays a branch.
+    every = mb.model_train_every
+    first_fit = -(-max(-(-config.warmup_steps // every), 1) * every // n) * n
+
+    def updates_ready(steps: jax.Array) -> jax.Array:
+        """Updates start after warm-up once there is data to sample: a full batch of real
+        transitions (sac) or the first model phase (mbpo, mbmpo)."""
         if model_based:
-            return warm & (jnp.sum(ts.data.model.size) > 0)
-        return warm & (ts.data.real.size >= batch)
+            return steps >= first_fit
+        return (steps >= config.warmup_steps) & (jnp.minimum(steps, config.buffer_size) >= batch)
 
     # Metric names come from the update itself (its output structure), not a hand-kept list.
     abstract = jax.eval_shape(init_compiled, jax.random.PRNGKey(0))
     names = tuple(jax.eval_shape(agent_update, abstract, jax.random.PRNGKey(0))[1])
 
-    def update_agent(ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+    def update_agent(ts: TrainState, key: jax.Array, steps: jax.Array) -> tuple[TrainState, dict]:
         def do_updates(ts: TrainState) -> tuple[TrainState, dict]:
             keys = jax.random.split(key, config.updates_per_step)
             ts, metrics = jax.lax.scan(agent_update, ts, keys)
@@ -357,28 +380,34 @@ def make_train(config: TrainConfig) -> Trainer:
         def skip(ts: TrainState) -> tuple[TrainState, dict]:
             return ts, {k: jnp.zeros(()) for k in names}
 
-        ready = updates_ready(ts)
+        ready = updates_ready(steps)
         ts, metrics = jax.lax.cond(ready, do_updates, skip, ts)
         return ts, {**metrics, "updated": ready.astype(jnp.float32)}
 
     # ---- one iteration, one chunk ---------------------------------------------------------
-    def iteration(ts: TrainState, _: None) -> tuple[TrainState, dict]:
+    def iteration(ts: TrainState, steps_before: jax.Array) -> tuple[TrainState, dict]:
+        """One env step of every environment, storage, the model phase when due and the agent
+        updates; ``steps_before`` is the (unbatched) env-step counter before the step."""
         if model_based:
             rng, k_act, k_reset, k_slot, k_model, k_update = jax.random.split(ts.rng, 6)
         else:
             rng, k_act, k_reset, k_update = jax.random.split(ts.rng, 4)
             k_slot = k_model = None
         ts = ts.replace(rng=rng)
-        ts, s = collect(ts, (k_act, k_reset, k_slot))
+        ts, s = collect(ts, (k_act, k_reset, k_slot), steps_before)
         ts = ts.replace(data=store(ts.data, s.transitions))
+        steps = steps_before + n
         out = {}
         if model_based:
-            due = model_due(ts.env_steps)
+            due = model_due(steps)
             ts, imagined = jax.lax.cond(
-                due, model_phase, lambda t, k: (t, jnp.zeros((), jnp.int32)), ts, k_model
-            )
+                due,
+                model_phase,
+                lambda t, k, s: (t, jnp.zeros((), jnp.int32)),
+                ts, k_model, steps,
+            )  # fmt: skip
             out = {"refit": due.astype(jnp.float32), "imagined": imagined.astype(jnp.float32)}
-        ts, update_metrics = update_agent(ts, k_update)
+        ts, update_metrics = update_agent(ts, k_update, steps)
         out.update(
             update_metrics,
             episodes_finished=jnp.sum(s.ended.astype(jnp.float32)),
@@ -388,8 +417,8 @@ def make_train(config: TrainConfig) -> Trainer:
 
     iterations = config.eval_every // n
 
-    def train_chunk(ts: TrainState) -> tuple[TrainState, dict]:
-        ts, metrics = jax.lax.scan(iteration, ts, None, length=iterations)
+    def chunk_summary(ts: TrainState, metrics: dict) -> dict:
+        """One member's chunk metrics (per-iteration outputs -> summary)."""
         summary = summarize_chunk(metrics, names, config.updates_per_step)
         if model_based:
             model = ts.model
@@ -401,7 +430,24 @@ def make_train(config: TrainConfig) -> Trainer:
             summary["model_elites"] = model.elites
             summary["model_epochs"] = model.last_epochs.astype(jnp.float32)
             summary["model_buffer_size"] = jnp.sum(ts.data.model.size).astype(jnp.float32)
-        return ts, summary
+        return summary
+
+    def run_chunk(ts: TrainState, start: jax.Array, members: bool) -> tuple[TrainState, dict]:
+        """``iterations`` iterations from env step ``start`` (unbatched); with ``members`` the
+        state has a leading population axis and each iteration is vmapped over it."""
+        step = jax.vmap(iteration, in_axes=(0, None)) if members else iteration
+
+        def body(ts, i):
+            return step(ts, start + i * n)
+
+        ts, metrics = jax.lax.scan(body, ts, jnp.arange(iterations, dtype=jnp.int32))
+        if members:
+            metrics = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), metrics)
+            return ts, jax.vmap(chunk_summary)(ts, metrics)
+        return ts, chunk_summary(ts, metrics)
+
+    def train_chunk(ts: TrainState) -> tuple[TrainState, dict]:
+        return run_chunk(ts, ts.env_steps, members=False)
 
     evaluator = make_evaluator(env, sac.control, config.max_episode_steps, norm_on,
                                config.eval_episodes)  # fmt: skip
@@ -409,7 +455,11 @@ def make_train(config: TrainConfig) -> Trainer:
     def evaluate(ts: TrainState, key: jax.Array, tasks: envs.Task) -> EvalResult:
         return evaluator(ts.agent.actor_params, ts.data.normalizer, key, tasks)
 
-    parts: dict[str, Callable] = {"agent_update": agent_update}
+    parts: dict[str, Callable] = {
+        "agent_update": agent_update,
+        "run_chunk": run_chunk,
+        "init_state": init_compiled,
+    }
     if model_based:
         parts.update(refit=refit, imagine=imagine)
     return Trainer(

@@ -42,7 +42,7 @@ def test_model_based_chunk_compiles_once(algo):
         # The adapted policies differ from the meta policy.
         gap = jax.tree.map(
             lambda a, p: float(np.max(np.abs(np.asarray(a) - np.asarray(p)))),
-            state.meta, state.agent.actor_params,
+            state.meta.adapted, state.agent.actor_params,
         )  # fmt: skip
         assert max(jax.tree.leaves(gap)) > 0
     # Another seed, same program.

@@ -1,0 +1,321 @@
+"""Populations: many agents (seeds x swept values) trained in one compiled program.
+
+A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
+values). Members that differ only in fields that are *data* (``DATA_FIELDS``: the seed, the MA
+weight, the SAC learning rates, MB-MPO's inner step size) share one program: their train states
+are stacked on a leading axis and every iteration is vmapped over it (``train.make_train``'s
+``run_chunk``), so sweeping those values never recompiles. Members that differ in anything else
+(network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups, compiled once
+each and trained one after another.
+
+The schedule (warm-up, model refits, update start) is a function of the env-step counter, which
+all members of a group share: it is passed unbatched, so every ``lax.cond`` of the schedule stays
+a branch under ``vmap`` instead of a select that would run both sides for every member.
+
+Each member has its own run directory (config.json with its own values, metrics.jsonl,
+TensorBoard, checkpoints, policy snapshots), so ``evaluate``, ``meta-test`` and ``analyze`` read
+members exactly as single runs; the population directory holds ``population.json``, the index.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from minatt_jax import checkpoint, runner
+from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
+from minatt_jax.evaluation import make_evaluator, summarize
+from minatt_jax.run_files import RunError, load_config, write_json_atomic
+from minatt_jax.train import Trainer, TrainState, make_train
+
+# Fields whose values are data in the train state: members differing only in these share a program.
+DATA_FIELDS = ("seed", "ma.alpha", "sac.actor_lr", "sac.critic_lr", "sac.entropy_lr",
+               "mb.meta_inner_lr")  # fmt: skip
+
+
+def _get(config: TrainConfig, dotted: str) -> Any:
+    value: Any = config
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-9"``, ``"0,3,5"`` or ``"0-3,7"`` -> a sorted list of distinct seeds (ValueError)."""
+    seeds: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        lo, dash, hi = part.partition("-")
+        try:
+            first, last = int(lo), int(hi) if dash else int(lo)
+        except ValueError:
+            raise ValueError(f"seeds must look like 0-9 or 0,3,5; got {text!r}") from None
+        if first < 0 or last < first:
+            raise ValueError(f"seeds must be >= 0 and ranges ascending; got {part!r}")
+        seeds.update(range(first, last + 1))
+    return sorted(seeds)
+
+
+def expand(base: TrainConfig, seeds: list[int], sweeps: list[str]) -> list[TrainConfig]:
+    """The members: every seed x every combination of the swept values (each resolved).
+
+    ``sweeps`` are ``"group.field=v1,v2,..."`` strings (values typed from the dataclasses, as
+    ``--set``); a field may be swept once.
+    """
+    grid: list[list[str]] = []
+    names: list[str] = []
+    for sweep in sweeps:
+        key, sep, values = sweep.partition("=")
+        key = key.strip()
+        if not sep or not values.strip():
+            raise ValueError(f"sweep {sweep!r} must look like group.field=v1,v2,...")
+        if key in names:
+            raise ValueError(f"{key} is swept twice")
+        if key == "seed":
+            raise ValueError("seeds are set with --seeds, not swept")
+        names.append(key)
+        grid.append([f"{key}={v.strip()}" for v in _split_values(values)])
+    members = []
+    for combo in itertools.product(*grid) if grid else [()]:
+        swept = apply_overrides(base, list(combo))
+        for seed in seeds:
+            members.append(resolve(replace_fields(swept, {"seed": seed})))
+    return members
+
+
+def _split_values(text: str) -> list[str]:
+    """Values of a sweep: commas separate values except inside parentheses (tuples)."""
+    out, depth, current = [], 0, ""
+    for ch in text:
+        depth += ch == "("
+        depth -= ch == ")"
+        if ch == "," and depth == 0:
+            out.append(current)
+            current = ""
+        else:
+            current += ch
+    return [v for v in [*out, current] if v.strip()]
+
+
+def program_config(config: TrainConfig) -> TrainConfig:
+    """The member's configuration with its data fields at fixed values: equal for members that
+    can share one compiled program."""
+    return replace_fields(config, {"seed": 0, "ma.alpha": 0.0, "sac.actor_lr": 1.0,
+                                   "sac.critic_lr": 1.0, "sac.entropy_lr": 1.0,
+                                   "mb.meta_inner_lr": 0.0})  # fmt: skip
+
+
+def groups(members: list[TrainConfig]) -> list[list[int]]:
+    """Member indices grouped by program, in first-appearance order."""
+    order: dict[TrainConfig, list[int]] = {}
+    for i, m in enumerate(members):
+        order.setdefault(program_config(m), []).append(i)
+    return list(order.values())
+
+
+def member_name(config: TrainConfig, swept: list[str]) -> str:
+    """A run-directory name from the swept fields' values and the seed."""
+    parts = [config.algo]
+    for key in swept:
+        value = _get(config, key)
+        text = f"{value:g}" if isinstance(value, float) else str(value).replace(" ", "")
+        parts.append(f"{key.split('.')[-1]}{text}")
+    parts.append(f"seed{config.seed}")
+    return "_".join(parts)
+
+
+def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
+    """The member's values of the data fields that live in the train state (float32)."""
+    return {k: np.float32(_get(config, k)) for k in DATA_FIELDS if k != "seed"}
+
+
+def with_data(state: TrainState, values: dict[str, jax.Array]) -> TrainState:
+    """A member's state with its data fields (MA weight, learning rates, inner step) set."""
+    agent = state.agent
+
+    def lr(opt_state: Any, value: jax.Array) -> Any:
+        hyper = dict(opt_state.hyperparams)
+        hyper["learning_rate"] = jnp.asarray(value, hyper["learning_rate"].dtype)
+        return opt_state._replace(hyperparams=hyper)
+
+    agent = agent.replace(
+        ma_alpha=values["ma.alpha"],
+        actor_opt=lr(agent.actor_opt, values["sac.actor_lr"]),
+        critic_opt=lr(agent.critic_opt, values["sac.critic_lr"]),
+        entropy_opt=lr(agent.entropy_opt, values["sac.entropy_lr"]),
+    )
+    meta = state.meta
+    if meta is not None:
+        meta = meta.replace(inner_lr=values["mb.meta_inner_lr"])
+    return state.replace(agent=agent, meta=meta)
+
+
+class Program:
+    """One group's compiled functions: init, the vmapped chunk and the vmapped evaluation."""
+
+    def __init__(self, members: list[TrainConfig]) -> None:
+        configs = members
+        # MA terms are computed when any member uses them; alpha = 0 members weigh them by 0.
+        alpha = max(c.ma.alpha for c in configs)
+        self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha})
+        self.trainer: Trainer = make_train(self.config)
+        self.members = configs
+        t = self.trainer
+
+        def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
+            return with_data(t.parts["init_state"](key), values)
+
+        self._init = jax.jit(jax.vmap(init_member))
+        self.chunk = jax.jit(
+            lambda states: t.parts["run_chunk"](states, states.env_steps[0], True),
+            donate_argnums=0,
+        )
+        cfg = self.config
+        evaluator = make_evaluator(t.env, t.sac.control, cfg.max_episode_steps,
+                                   cfg.sac.normalize_obs, cfg.eval_episodes)  # fmt: skip
+        self.evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, 0, 0, None)))
+
+    def init(self) -> TrainState:
+        """Every member's initial state (its seed's, with its data values), stacked. As for
+        single runs, every leaf gets its own buffer (the state is donated to the chunk)."""
+        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in self.members])
+        values = stack([data_values(c) for c in self.members])
+        states = self._init(keys, values)
+        return jax.tree.map(lambda x: jnp.array(x, copy=True), states)
+
+
+def member(states: Any, i: int) -> Any:
+    """Member ``i`` of stacked states."""
+    return jax.tree.map(lambda x: x[i], states)
+
+
+def stack(states: list[Any]) -> Any:
+    """Member states stacked on a new leading axis."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+
+
+def train_population(
+    members: list[TrainConfig],
+    out_dir: str,
+    swept: list[str],
+    resume: bool = False,
+    log: Callable[[str], None] = print,
+) -> list[dict[str, Any]]:
+    """Trains (or resumes) every member, group by group; returns each member's last record."""
+    names = [member_name(c, swept) for c in members]
+    if len(set(names)) != len(names):
+        raise RunError("two members would share a run directory; sweep distinct values")
+    dirs = [os.path.join(out_dir, n) for n in names]
+    index_path = os.path.join(out_dir, "population.json")
+    index = {
+        "members": [
+            {"run_dir": n, **{k: _get(c, k) for k in swept}, "seed": c.seed}
+            for n, c in zip(names, members, strict=True)
+        ],  # fmt: skip
+        "swept": swept,
+        "groups": groups(members),
+    }
+    if resume:
+        if not os.path.exists(index_path):
+            raise RunError(f"{out_dir} holds no population to resume (no population.json)")
+        for d, c in zip(dirs, members, strict=True):
+            if load_config(d).to_dict() != c.to_dict():
+                raise RunError(f"{d} was made with other settings; see its config.json")
+    else:
+        if os.path.exists(index_path):
+            raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
+        for d, c in zip(dirs, members, strict=True):
+            os.makedirs(d, exist_ok=True)
+            write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
+        write_json_atomic(index_path, index)
+    last: list[dict[str, Any]] = [{} for _ in members]
+    for g, indices in enumerate(index["groups"]):
+        group = [members[i] for i in indices]
+        log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members "
+            f"({group[0].algo}, {group[0].env})")  # fmt: skip
+        records = _train_group(Program(group), [dirs[i] for i in indices], resume, log)
+        for i, r in zip(indices, records, strict=True):
+            last[i] = r
+    return last
+
+
+def _train_group(
+    program: Program, dirs: list[str], resume: bool, log: Callable[[str], None]
+) -> list[dict[str, Any]]:
+    config, trainer = program.config, program.trainer
+    states = program.init()
+    if resume:
+        steps = {checkpoint.latest_step(d) for d in dirs}
+        if len(steps) != 1:
+            raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
+        step = steps.pop()
+        if step is not None:
+            restored = []
+            for i, d in enumerate(dirs):
+                try:
+                    restored.append(checkpoint.restore(d, member(states, i), step)[1])
+                except checkpoint.CheckpointError as e:
+                    raise RunError(str(e)) from None
+            states = stack(restored)
+        for d in dirs:
+            runner.keep_metrics_until(d, step or 0)
+        log(f"resumed {len(dirs)} members at env step {step or 0}")
+    t0 = time.perf_counter()
+    chunk = program.chunk.lower(states).compile()
+    compile_s = time.perf_counter() - t0
+    log(f"compiled the population step ({len(dirs)} members) in {compile_s:.1f} s")
+    writers = [runner.tensorboard(d) for d in dirs]
+    eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in program.members]
+    records: list[dict[str, Any]] = [{} for _ in dirs]
+    start = time.perf_counter()
+    total = max(c.total_steps for c in program.members)
+    while int(states.env_steps[0]) < total:
+        t0 = time.perf_counter()
+        states, metrics = chunk(states)
+        states = jax.block_until_ready(states)
+        chunk_s = time.perf_counter() - t0
+        step = int(states.env_steps[0])
+        t0 = time.perf_counter()
+        keys = jnp.stack([jax.random.fold_in(k, step) for k in eval_keys])
+        results = jax.device_get(program.evaluate(
+            states.agent.actor_params, states.data.normalizer, keys, trainer.task_set
+        ))  # fmt: skip
+        eval_s = time.perf_counter() - t0
+        metrics = jax.device_get(metrics)
+        timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
+                   "wall_s": time.perf_counter() - start}  # fmt: skip
+        for i, d in enumerate(dirs):
+            evaluation = summarize(member(results, i), trainer.env.dt)
+            record = runner.make_record(step, evaluation, member(metrics, i), timings,
+                                        trainer.steps_per_chunk)  # fmt: skip
+            # Rates per member: the population's aggregate is len(dirs) times these.
+            runner.write_step(d, step, member(states, i), record, writers[i])
+            records[i] = record
+        returns = np.asarray([r["return"] for r in records])
+        log(f"step {step:>8d}/{total} | return {returns.mean():9.2f} "
+            f"(min {returns.min():.1f}, max {returns.max():.1f}) over {len(dirs)} members | "
+            f"{len(dirs) * config.eval_every / chunk_s:8.0f} env steps/s in all")  # fmt: skip
+    for w in writers:
+        if w is not None:
+            w.close()
+    return records
+
+
+__all__ = [
+    "DATA_FIELDS",
+    "Program",
+    "expand",
+    "groups",
+    "member_name",
+    "parse_seeds",
+    "program_config",
+    "train_population",
+    "with_data",
+]
