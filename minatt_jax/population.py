@@ -12,6 +12,9 @@ The schedule (warm-up, model refits, update start) is a function of the env-step
 all members of a group share: it is passed unbatched, so every ``lax.cond`` of the schedule stays
 a branch under ``vmap`` instead of a select that would run both sides for every member.
 
+Members are sharded over all local devices (``jax.sharding``, a mesh over the population axis)
+when there are several and their number divides the population.
+
 Each member has its own run directory (config.json with its own values, metrics.jsonl,
 TensorBoard, checkpoints, policy snapshots), so ``evaluate``, ``meta-test`` and ``analyze`` read
 members exactly as single runs; the population directory holds ``population.json``, the index.
@@ -173,10 +176,17 @@ class Program:
             return with_data(t.parts["init_state"](key), values)
 
         self._init = jax.jit(jax.vmap(init_member))
-        self.chunk = jax.jit(
-            lambda states: t.parts["run_chunk"](states, states.env_steps[0], True),
-            donate_argnums=0,
-        )
+
+        def chunk(states: TrainState) -> tuple[TrainState, dict]:
+            return t.parts["run_chunk"](states, states.env_steps[0], True)
+
+        self._chunk_fn = chunk
+        self.sharding = self._member_sharding()
+        if self.sharding is None:
+            self.chunk = jax.jit(chunk, donate_argnums=0)
+        else:  # states and per-member metrics stay split over the devices, chunk after chunk
+            self.chunk = jax.jit(chunk, donate_argnums=0, in_shardings=self.sharding,
+                                 out_shardings=self.sharding)  # fmt: skip
         cfg = self.config
         evaluator = make_evaluator(t.env, t.sac.control, cfg.max_episode_steps,
                                    cfg.sac.normalize_obs, cfg.eval_episodes)  # fmt: skip
@@ -188,7 +198,20 @@ class Program:
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in self.members])
         values = stack([data_values(c) for c in self.members])
         states = self._init(keys, values)
-        return jax.tree.map(lambda x: jnp.array(x, copy=True), states)
+        return self.place(jax.tree.map(lambda x: jnp.array(x, copy=True), states))
+
+    def _member_sharding(self) -> jax.sharding.Sharding | None:
+        """A 1-D mesh over the population axis on all local devices, when there are several
+        and they divide the population (else None: one device)."""
+        devices = jax.local_devices()
+        if len(devices) < 2 or len(self.members) % len(devices):
+            return None
+        mesh = jax.sharding.Mesh(np.asarray(devices), ("members",))
+        return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("members"))
+
+    def place(self, states: TrainState) -> TrainState:
+        """The stacked states split over the devices (``_member_sharding``), if several."""
+        return states if self.sharding is None else jax.device_put(states, self.sharding)
 
 
 def member(states: Any, i: int) -> Any:
@@ -263,7 +286,7 @@ def _train_group(
                     restored.append(checkpoint.restore(d, member(states, i), step)[1])
                 except checkpoint.CheckpointError as e:
                     raise RunError(str(e)) from None
-            states = stack(restored)
+            states = program.place(stack(restored))
         for d in dirs:
             runner.keep_metrics_until(d, step or 0)
         log(f"resumed {len(dirs)} members at env step {step or 0}")
