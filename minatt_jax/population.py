@@ -171,6 +171,7 @@ class Program:
         self.trainer: Trainer = make_train(self.config)
         self.members = configs
         t = self.trainer
+        self.bytes_per_member = check_memory(t, len(configs))
 
         def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
             return with_data(t.parts["init_state"](key), values)
@@ -214,6 +215,41 @@ class Program:
         return states if self.sharding is None else jax.device_put(states, self.sharding)
 
 
+def state_bytes(trainer: Trainer) -> int:
+    """Bytes of one member's train state (from shapes alone: nothing is allocated)."""
+    shapes = jax.eval_shape(trainer.parts["init_state"], jax.random.PRNGKey(0))
+    return sum(int(np.prod(s.shape)) * s.dtype.itemsize for s in jax.tree.leaves(shapes))
+
+
+def device_memory_bytes() -> int | None:
+    """Memory the population's device(s) offer: the accelerators' limit, or the host's
+    available memory on the CPU; None where neither can be read."""
+    devices = jax.local_devices()
+    stats = devices[0].memory_stats() if hasattr(devices[0], "memory_stats") else None
+    if stats and "bytes_limit" in stats:
+        return int(stats["bytes_limit"]) * len(devices)
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(trainer: Trainer, members: int) -> int:
+    """Bytes per member; RunError before compiling when the population cannot fit (the state
+    is held about twice while a chunk runs: input and output buffers)."""
+    per_member = state_bytes(trainer)
+    available = device_memory_bytes()
+    needed = 2 * per_member * members
+    if available is not None and needed > 0.9 * available:
+        raise RunError(
+            f"{members} members need about {needed / 2**30:.1f} GiB ({per_member / 2**20:.0f} MiB "
+            f"of state each, held twice) but the device offers {available / 2**30:.1f} GiB: "
+            f"fewer members, or smaller buffers (--set buffer_size=..., "
+            f"--set mb.model_buffer_size=...)"
+        )
+    return per_member
+
+
 def member(states: Any, i: int) -> Any:
     """Member ``i`` of stacked states."""
     return jax.tree.map(lambda x: x[i], states)
@@ -245,6 +281,8 @@ def train_population(
         "swept": swept,
         "groups": groups(members),
     }
+    # Built first: a population that cannot fit is refused before anything is written.
+    programs = [Program([members[i] for i in indices]) for indices in index["groups"]]
     if resume:
         if not os.path.exists(index_path):
             raise RunError(f"{out_dir} holds no population to resume (no population.json)")
@@ -259,11 +297,12 @@ def train_population(
             write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
         write_json_atomic(index_path, index)
     last: list[dict[str, Any]] = [{} for _ in members]
-    for g, indices in enumerate(index["groups"]):
-        group = [members[i] for i in indices]
-        log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members "
-            f"({group[0].algo}, {group[0].env})")  # fmt: skip
-        records = _train_group(Program(group), [dirs[i] for i in indices], resume, log)
+    for g, (indices, program) in enumerate(zip(index["groups"], programs, strict=True)):
+        group = program.members
+        mib = program.bytes_per_member / 2**20
+        log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members ({group[0].algo}, "
+            f"{group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
+        records = _train_group(program, [dirs[i] for i in indices], resume, log)
         for i, r in zip(indices, records, strict=True):
             last[i] = r
     return last

@@ -1,0 +1,146 @@
+"""Populations: members in one program, equal to single runs, refits when due, resume, devices."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from minatt_jax import population, runner
+from minatt_jax import train as train_module
+from minatt_jax.cli import main
+from minatt_jax.config import PRESETS, resolve, with_overrides
+
+ONE_CHUNK = with_overrides(PRESETS["smoke"], total_steps=300)
+
+
+def _comparable(records):
+    return [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS} for r in records]
+
+
+def test_members_and_groups():
+    members = population.expand(ONE_CHUNK, [0, 1, 2], ["ma.alpha=0,0.5,1"])
+    assert len(members) == 9 and {m.seed for m in members} == {0, 1, 2}
+    assert sorted({m.ma.alpha for m in members}) == [0.0, 0.5, 1.0]
+    assert population.groups(members) == [list(range(9))]  # data fields only: one program
+    shapes = population.expand(ONE_CHUNK, [0, 1], ["sac.hidden=(32,32),(64,64)", "ma.alpha=0,1"])
+    assert [len(g) for g in population.groups(shapes)] == [4, 4]  # a shape field: two programs
+    names = {population.member_name(m, ["sac.hidden", "ma.alpha"]) for m in shapes}
+    assert "sac_hidden(64,64)_alpha1_seed1" in names and len(names) == 8
+    assert population.parse_seeds("0-3,7,2") == [0, 1, 2, 3, 7]
+    for bad in ("a-b", "3-1", "-1"):
+        with pytest.raises(ValueError, match="seeds"):
+            population.parse_seeds(bad)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--seeds", "0-1", "--seed", "3"], "a population takes --seeds"),
+        (["--seeds", "x"], "seeds must look like"),
+        (["--sweep", "ma.alpha"], "must look like group.field=v1,v2"),
+        (["--sweep", "ma.alpah=0,1"], "unknown setting 'ma.alpah'"),
+        (["--sweep", "ma.alpha=0,-1"], "alpha must be >= 0"),
+        (["--sweep", "seed=0,1"], "seeds are set with --seeds"),
+    ],
+)
+def test_population_bad_input_exit_2(argv, message, capsys, tmp_path):
+    status = main(["train", "--preset", "smoke", "--out", str(tmp_path / "pop"), *argv])
+    err = capsys.readouterr().err
+    assert status == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert main(["train", "--preset", "smoke", "--seeds", "0-1"]) == 2
+    assert "needs --out" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
+    members = population.expand(ONE_CHUNK, [0, 1], ["ma.alpha=0,1"])
+    program = population.Program(members)
+    states, metrics = program.chunk(program.init())
+    alone = train_module.make_train(resolve(members[0]))  # alpha 0, seed 0, no MA terms at all
+    single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(0)))
+    for key in ("critic_loss", "actor_loss", "q_mean", "train_episode_return"):
+        np.testing.assert_allclose(metrics[key][0], single_metrics[key], rtol=1e-4, err_msg=key)
+    np.testing.assert_allclose(
+        jax.tree.leaves(states.agent.actor_params)[0][0],
+        jax.tree.leaves(single.agent.actor_params)[0], rtol=1e-4, atol=1e-6,
+    )  # fmt: skip
+    assert float(metrics["ma_feedback"][3]) > 0  # alpha 1 members are regularized
+    assert not np.allclose(metrics["actor_loss"][0], metrics["actor_loss"][2])
+    # Other swept values (MA weight, learning rates) are data: the same program runs them.
+    values = population.stack(
+        [
+            population.data_values(with_overrides(m, ma_alpha=0.3, sac_actor_lr=1e-3))
+            for m in members
+        ]  # fmt: skip
+    )
+    other = jax.vmap(population.with_data)(program.init(), values)
+    program.chunk(other)
+    assert program.chunk._cache_size() == 1
+
+
+@pytest.mark.slow
+def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
+    calls = []
+    real_make = train_module.make_ensemble
+
+    def counting(*args, **kwargs):
+        ensemble = real_make(*args, **kwargs)
+
+        def fit(*a, **k):
+            jax.debug.callback(lambda: calls.append(1))
+            return ensemble.fit(*a, **k)
+
+        return ensemble._replace(fit=fit)
+
+    monkeypatch.setattr(train_module, "make_ensemble", counting)
+    members = population.expand(with_overrides(ONE_CHUNK, algo="mbpo"), [0, 1, 2], [])
+    program = population.Program(members)
+    _, metrics = program.chunk(program.init())
+    jax.effects_barrier()
+    # Warm-up ends at 200, refits every 100 steps: at 200 and 300, for each of 3 members. Had
+    # the schedule's cond become a select under vmap, the fit would run at every step.
+    np.testing.assert_array_equal(metrics["model_fits"], [2, 2, 2])
+    assert len(calls) == 6
+
+
+@pytest.mark.slow
+def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
+    base = ["train", "--preset", "smoke", "--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
+    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
+    assert main([*base, "--out", straight]) == 0
+    assert main([*base, "--steps", "300", "--out", split]) == 0
+    assert main(["train", "--out", split, "--resume", "--steps", "600"]) == 0
+    names = sorted(d for d in os.listdir(straight) if d != "population.json")
+    assert names == ["sac_alpha0_seed0", "sac_alpha0_seed1", "sac_alpha1_seed0",
+                     "sac_alpha1_seed1"]  # fmt: skip
+    for name in names:
+        a = runner.read_metrics(os.path.join(straight, name))
+        b = runner.read_metrics(os.path.join(split, name))
+        assert [r["step"] for r in a] == [300, 600] and _comparable(a) == _comparable(b)
+    # The same population with its members split over two (forced host) devices.
+    sharded = str(tmp_path / "sharded")
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    subprocess.run([sys.executable, "-m", "minatt_jax.cli", *base, "--out", sharded], env=env,
+                   check=True, capture_output=True, timeout=900)  # fmt: skip
+    for name in names:
+        a = runner.read_metrics(os.path.join(straight, name))
+        b = runner.read_metrics(os.path.join(sharded, name))
+        for ra, rb in zip(a, b, strict=True):
+            for key in ("return", "feedback_norm", "critic_loss", "energy"):
+                # Two members per device instead of four on one: XLA may order float
+                # reductions differently, so equal to float tolerance, not bit for bit.
+                assert ra[key] == pytest.approx(rb[key], rel=1e-3), (name, key)
+
+
+def test_a_population_that_cannot_fit_is_refused_before_compiling(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(population, "device_memory_bytes", lambda: 64 * 2**20)  # a 64 MiB device
+    argv = ["train", "--preset", "cpu", "--seeds", "0-3", "--out", str(tmp_path / "pop")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "4 members need about" in err and "--set buffer_size" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "pop").exists()
