@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from minatt_jax.config import PRESETS, TrainConfig, resolve, with_overrides
-from minatt_jax.train import make_train
+from minatt_jax.training import make_train
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results", "meta_step.json")
 

@@ -8,4 +8,14 @@ import io as _io
 with _contextlib.redirect_stdout(_io.StringIO()):
     from mujoco import mjx as _mjx  # noqa: F401
 
+from minatt_jax.api import (  # noqa: E402 - after the mjx note is silenced
+    Run,
+    load_run,
+    make_config,
+    plot_curves,
+    train,
+    train_population,
+)
+
 __version__ = "0.1.0"
+__all__ = ["Run", "load_run", "make_config", "plot_curves", "train", "train_population"]

@@ -324,7 +324,7 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
     trainer: from the step's policy snapshot, or from the checkpoint's agent and normalizer items
     alone when there is no snapshot. No replay or model buffer is allocated."""
     from minatt_jax import run_files
-    from minatt_jax.train import make_agent
+    from minatt_jax.training import make_agent
 
     config = run_files.load_config(run_dir)
     if step is None:

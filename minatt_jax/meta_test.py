@@ -35,7 +35,7 @@ from minatt_jax import normalizer as obs_norm
 from minatt_jax.dynamics_ensemble import make_ensemble
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.maml import Trajectories, make_meta_step
-from minatt_jax.train import make_meta
+from minatt_jax.training import make_meta
 
 REPORTED = ("return", "feedback_norm", "feedforward_norm", "energy")
 

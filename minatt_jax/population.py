@@ -3,7 +3,7 @@
 A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
 values). Members that differ only in fields that are *data* (``DATA_FIELDS``: the seed, the MA
 weight, the SAC learning rates, MB-MPO's inner step size) share one program: their train states
-are stacked on a leading axis and every iteration is vmapped over it (``train.make_train``'s
+are stacked on a leading axis and every iteration is vmapped over it (``training.make_train``'s
 ``run_chunk``), so sweeping those values never recompiles. Members that differ in anything else
 (network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups, compiled once
 each and trained one after another.
@@ -36,7 +36,7 @@ from minatt_jax import checkpoint, runner
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.run_files import RunError, load_config, write_json_atomic
-from minatt_jax.train import Trainer, TrainState, make_train
+from minatt_jax.training import Trainer, TrainState, make_train
 
 # Fields whose values are data in the train state: members differing only in these share a program.
 DATA_FIELDS = ("seed", "ma.alpha", "sac.actor_lr", "sac.critic_lr", "sac.entropy_lr",

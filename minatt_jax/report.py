@@ -38,7 +38,7 @@ from minatt_jax import control_analysis as ca
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.config import TrainConfig
 from minatt_jax.plots import _pyplot, save_figure
-from minatt_jax.train import make_agent
+from minatt_jax.training import make_agent
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",

@@ -29,7 +29,7 @@ from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's pub
     write_json_atomic,
     write_text_atomic,
 )
-from minatt_jax.train import make_train
+from minatt_jax.training import make_train
 
 TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "chunk_s", "eval_s",
                "compile_s")  # fmt: skip

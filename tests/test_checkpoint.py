@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from minatt_jax import checkpoint, runner
-from minatt_jax import train as train_module
+from minatt_jax import training as train_module
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
 

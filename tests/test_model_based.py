@@ -11,7 +11,7 @@ import pytest
 from minatt_jax import runner
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.train import make_train
+from minatt_jax.training import make_train
 
 
 @pytest.mark.parametrize("algo", ["mbpo", "mbmpo", "mbmpo-vpg-trpo"])

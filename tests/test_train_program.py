@@ -18,7 +18,7 @@ from minatt_jax import control_analysis as ca
 from minatt_jax import min_attention as ma
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.sac import make_sac
-from minatt_jax.train import make_train
+from minatt_jax.training import make_train
 
 DATA = pathlib.Path(__file__).parent / "data"
 
@@ -141,4 +141,4 @@ def test_no_import_cycles_in_the_package():
     for module in graph:
         if module not in state:
             visit(module, [])
-    assert "minatt_jax.train" in graph and "minatt_jax.trainer" not in graph
+    assert "minatt_jax.training" in graph and "minatt_jax.trainer" not in graph

@@ -19,7 +19,7 @@ from minatt_jax import acting, checkpoint, runner
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import summarize
-from minatt_jax.train import make_train
+from minatt_jax.training import make_train
 
 LEARN = dataclasses.replace(
     with_overrides(
