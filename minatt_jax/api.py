@@ -97,9 +97,7 @@ class Run:
         return f"{c.algo} alpha={c.ma.alpha:g} seed={c.seed}"
 
 
-def make_config(
-    preset: str = "cpu", overrides: Sequence[str] = (), **fields: Any
-) -> TrainConfig:
+def make_config(preset: str = "cpu", overrides: Sequence[str] = (), **fields: Any) -> TrainConfig:
     """A resolved configuration: a preset, dotted ``overrides`` ("ma.alpha=1") and keyword
     fields (``ma_alpha=1.0``, ``env="walker2d"``, ``total_steps=10_000``)."""
     if preset not in PRESETS:
