@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -34,13 +35,23 @@ def _in_notebook() -> bool:
 
 
 def progress_logger() -> Callable[[str], None]:
-    """Prints lines in a terminal; in a notebook, one output line updated in place."""
+    """Prints lines in a terminal; in a notebook, one line updated in place with a progress bar
+    (``[#####.....] step 5000/20000 | ...``)."""
     if not _in_notebook():
         return lambda message: print(message, flush=True)
     from IPython.display import display
 
     handle = display("starting ...", display_id=True)
-    return lambda message: handle.update(message)
+
+    def update(message: str) -> None:
+        match = re.search(r"step\s+(\d+)/(\d+)", message)
+        if match:
+            done, total = int(match.group(1)), int(match.group(2))
+            filled = round(30 * done / max(total, 1))
+            message = f"[{'#' * filled}{'.' * (30 - filled)}] {message}"
+        handle.update(message)
+
+    return update
 
 
 @dataclasses.dataclass
