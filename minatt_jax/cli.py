@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from typing import Any, NoReturn
 
 EXIT_USER_ERROR = 2
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 class UserError(Exception):
@@ -40,6 +41,10 @@ def _number(kind: type, minimum: float, strict: bool, label: str):
         too_small = value <= minimum if strict else value < minimum
         if too_small or value != value or value in (float("inf"), float("-inf")):
             raise argparse.ArgumentTypeError(f"expected {label}, got {text!r}")
+        if kind is float and abs(value) > FLOAT32_MAX:
+            raise argparse.ArgumentTypeError(f"{text} overflows float32 (training runs in float32)")
+        if kind is int and value >= 2**31:
+            raise argparse.ArgumentTypeError(f"{text} is too large (at most {2**31 - 1})")
         return value
 
     return parse

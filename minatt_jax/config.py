@@ -263,6 +263,7 @@ PRESETS: dict[str, TrainConfig] = {
 
 
 GROUPS = ("sac", "ma", "caps", "model", "mb")
+FLOAT32_MAX = 3.4028234663852886e38  # training runs in float32: larger values become inf
 
 
 class OverrideError(ValueError):
@@ -305,11 +306,12 @@ def _parse(text: str, hint: Any, dotted: str) -> Any:
             return int(text)
         if hint is float:
             value = float(text)
-            if not math.isfinite(value):
+            if not math.isfinite(value) or abs(value) > FLOAT32_MAX:
                 raise ValueError
             return value
     except ValueError:
-        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[hint]
+        kind = {bool: "true or false", int: "an integer",
+                float: "a finite number within float32's range"}[hint]  # fmt: skip
         raise OverrideError(f"{dotted} expects {kind}, got {text!r}") from None
     return text
 

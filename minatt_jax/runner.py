@@ -78,6 +78,21 @@ def make_record(
     return {**record, **timings}
 
 
+def non_finite(record: dict[str, Any]) -> list[str]:
+    """The names of a record's non-finite values (a diverged run: NaN or inf losses, returns).
+
+    The model's holdout MSE is left out: it is inf by definition until the first model fit.
+    """
+    bad = []
+    for k, v in record.items():
+        if k.startswith("model_holdout_mse"):
+            continue
+        values = np.asarray(v, dtype=np.float64)
+        if not np.all(np.isfinite(values)):
+            bad.append(k)
+    return bad
+
+
 def write_step(run_dir: str, step: int, state: Any, record: dict, writer: Any) -> None:
     """Appends the record (metrics.jsonl, TensorBoard), then the policy snapshot, then the
     checkpoint of ``state``: a crash between the two never leaves a checkpoint without its
@@ -137,6 +152,9 @@ def train(
     else:
         if os.path.exists(config_path):
             raise RunError(f"{run_dir} already holds a run; pass --resume or choose another --out")
+        if checkpoint.latest_step(run_dir) is not None or read_metrics(run_dir):
+            raise RunError(f"{run_dir} holds checkpoints or metrics of another run but no "
+                           "config.json; choose another --out or remove them")  # fmt: skip
         write_json_atomic(config_path, config.to_dict())
         state = trainer.init(jax.random.PRNGKey(config.seed))
 
@@ -166,6 +184,13 @@ def train(
                    "wall_s": elapsed}  # fmt: skip
         record = make_record(step, evaluation, jax.device_get(train_metrics), timings,
                              trainer.steps_per_chunk)  # fmt: skip
+        bad = non_finite(record)
+        if bad:
+            raise RunError(
+                f"training diverged at step {step}: non-finite {', '.join(bad[:4])}; nothing of "
+                f"this step was saved (the last checkpoint is step "
+                f"{checkpoint.latest_step(run_dir)}). Lower the weights or learning rates"
+            )
         write_step(run_dir, step, state, record, writer)
         log(
             f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "

@@ -137,3 +137,20 @@ def test_cli_config_errors_exit_2_with_one_line(argv, message, capsys, tmp_path)
     err = capsys.readouterr().err
     assert status == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "run").exists()  # nothing written for a refused run
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "--alpha", "1e39"], "overflows float32"),
+        (["train", "--set", "ma.alpha=1e39"], "within float32's range"),
+        (["train", "--seed", "99999999999999999999"], "too large"),
+    ],
+)
+def test_values_beyond_float32_or_int32_are_refused(argv, message, capsys, tmp_path):
+    try:  # argparse's own errors leave by SystemExit(2), ours by the returned status
+        status = main([*argv, "--preset", "smoke", "--out", str(tmp_path / "run")])
+    except SystemExit as e:
+        status = e.code
+    err = capsys.readouterr().err
+    assert status == 2 and message in err and len(err.strip().splitlines()) == 1
