@@ -36,7 +36,7 @@ ControlFn = Callable[[Any, jax.Array], jax.Array]
 MODES = ("full", "jacobian", "temporal", "none")
 ESTIMATORS = ("jacfwd", "jacrev", "hutchinson")
 TEMPORAL_READINGS = ("parameter", "rollout")
-PLACEMENTS = ("actor_loss", "reward")
+PLACEMENTS = ("actor_loss", "reward", "entropy")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +55,9 @@ class MAConfig:
       temporal: "parameter" (appendix reading, default) or "rollout".
       temporal_dt: dt of the temporal term; None (default) = 1 update for the parameter reading,
         the environment's dt for the rollout reading (``config.resolve`` fills it in).
-      placement: "actor_loss" (default) or "reward" (subtract alpha * penalty(s) from rewards).
+      placement: "actor_loss" (default), "reward" (subtract alpha * penalty(s) from rewards) or
+        "entropy" (as SAC's entropy term: in the actor loss, and alpha * penalty(s') subtracted
+        from the soft value of the next state in the critic target).
     """
 
     alpha: float = 0.0
@@ -96,6 +98,11 @@ class MAConfig:
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)
+        if self.placement == "entropy" and self.temporal == "rollout":
+            raise ValueError(
+                "placement 'entropy' takes the penalty at the next state alone: it needs the "
+                "parameter reading of the temporal term (temporal='parameter')"
+            )
 
     @property
     def dt(self) -> float:
@@ -338,6 +345,9 @@ class Regularizer(NamedTuple):
     * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls, alpha)`` ->
       (penalty, metrics): what the actor objective adds (MA with ``placement="actor_loss"`` and
       CAPS); ``keys`` = (MA probe key, CAPS noise key); metrics named ``ma_*`` and ``caps_*``;
+    * ``next_value_penalty(params, next_obs, key, prev_params, alpha)`` -> per-state penalty at
+      the next states, subtracted from the soft value in the critic target with
+      ``placement="entropy"`` (zero otherwise), as SAC subtracts ent * log pi(a'|s');
     * ``shape_rewards(params, obs, next_obs, reward, key, prev_params, alpha)`` -> rewards: the
       batch transform of ``placement="reward"`` (alpha * penalty per state subtracted, no gradient);
       the identity otherwise.
@@ -348,6 +358,7 @@ class Regularizer(NamedTuple):
 
     actor_penalty: Callable[..., tuple[jax.Array, dict[str, jax.Array]]]
     shape_rewards: Callable[..., jax.Array]
+    next_value_penalty: Callable[..., jax.Array]
     ma_config: MAConfig
     caps_config: CAPSConfig
 
@@ -357,8 +368,9 @@ def make_regularizer(
 ) -> Regularizer:
     """The one place a learner gets its MA and CAPS penalties from (see ``Regularizer``)."""
     caps_config = caps_config or CAPSConfig()
-    in_actor = ma_config.active and ma_config.placement == "actor_loss"
+    in_actor = ma_config.active and ma_config.placement in ("actor_loss", "entropy")
     in_reward = ma_config.active and ma_config.placement == "reward"
+    in_value = ma_config.active and ma_config.placement == "entropy"
 
     def actor_penalty(
         params, obs, next_obs, keys, prev_params=None, update_step=0, controls=None, alpha=None
@@ -385,4 +397,11 @@ def make_regularizer(
                                     next_obs=next_obs, alpha=alpha)  # fmt: skip
         return reward - jax.lax.stop_gradient(shaping)
 
-    return Regularizer(actor_penalty, shape_rewards, ma_config, caps_config)
+    def next_value_penalty(params, next_obs, key, prev_params=None, alpha=None):
+        if not in_value:
+            return jnp.zeros(next_obs.shape[:1], jnp.float32)
+        per_state = per_state_penalty(ma_config, u, params, next_obs, key,
+                                      prev_params=prev_params, alpha=alpha)  # fmt: skip
+        return jax.lax.stop_gradient(per_state)
+
+    return Regularizer(actor_penalty, shape_rewards, next_value_penalty, ma_config, caps_config)

@@ -9,7 +9,9 @@
 and composes them in ``update``: reward transform -> critic step -> actor step -> entropy and
 target-critic steps. The smoothness penalties enter through one argument, the ``Regularizer``
 that ``min_attention.make_regularizer`` builds: MA in the actor loss (``placement="actor_loss"``),
-MA as a batch transform of the rewards before the critic loss (``placement="reward"``), CAPS in
+MA as a batch transform of the rewards before the critic loss (``placement="reward"``), MA as SAC
+treats entropy (``placement="entropy"``: in the actor loss and, at the next state, subtracted from
+the soft value in the critic target), CAPS in
 the actor loss. MB-MPO's meta step replaces only the actor step (``maml``), reusing the rest.
 """
 
@@ -127,12 +129,16 @@ def make_sac(
         return batch.replace(reward=reward)
 
     def critic_loss(critic_params, state: SACState, batch: Transitions, key: jax.Array):
-        k_next, _ = jax.random.split(key)
+        k_next, k_value = jax.random.split(key)
         mean, log_std = actor.apply(state.actor_params, batch.next_obs)
         next_action, next_logp = sample_tanh_gaussian(k_next, mean, log_std)
         q_next = critic.apply(state.target_critic_params, batch.next_obs, next_action)
         ent = jnp.exp(state.log_entropy_coef)
-        v_next = jnp.min(q_next, axis=0) - ent * next_logp
+        # The entropy-like placement of MA: its penalty at s' is paid like ent * log pi(a'|s').
+        ma_next = regularizer.next_value_penalty(
+            state.actor_params, batch.next_obs, k_value, state.prev_actor_params, state.ma_alpha
+        )
+        v_next = jnp.min(q_next, axis=0) - ent * next_logp - ma_next
         target = batch.reward + config.gamma * (1.0 - batch.terminal) * v_next
         q = critic.apply(critic_params, batch.obs, batch.action)
         loss = 0.5 * jnp.mean(jnp.sum(jnp.square(q - jax.lax.stop_gradient(target)), axis=0))

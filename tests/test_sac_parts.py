@@ -51,3 +51,34 @@ def test_normalizer_matches_numpy_statistics():
     z = normalizer.normalize(norm, jnp.asarray(data), enabled=True)
     assert float(jnp.abs(jnp.mean(z))) < 1e-3
     assert normalizer.normalize(norm, jnp.asarray(data), enabled=False) is not None
+
+
+def test_entropy_placement_charges_the_next_state_in_the_critic_target():
+    """placement="entropy": the critic target loses gamma (1 - d) alpha penalty(s'), exactly the
+    regularizer's per-state penalty at the next states; other placements leave the target alone."""
+    from minatt_jax import min_attention as ma
+    from minatt_jax.config import SACConfig
+    from minatt_jax.sac import make_sac
+
+    key = jax.random.PRNGKey(0)
+    obs = jax.random.normal(key, (16, 4))
+    batch = replay.Transitions(
+        obs=obs, action=jnp.zeros((16, 2)), reward=jnp.ones((16,)),
+        next_obs=obs + 0.1, terminal=jnp.zeros((16,)),
+    )  # fmt: skip
+    losses = {}
+    for placement in ("actor_loss", "entropy"):
+        cfg = ma.MAConfig(alpha=5.0, placement=placement, mode="jacobian", subsample=0)
+        sac = make_sac(4, 2, SACConfig(hidden=(8, 8)), cfg)
+        state = sac.init(jax.random.PRNGKey(1))
+        losses[placement] = float(sac.critic_step(state, batch, key)[1]["critic_loss"])
+        pen = sac.regularizer.next_value_penalty(state.actor_params, batch.next_obs, key)
+        if placement == "entropy":
+            exact = 5.0 * ma.feedback_exact(sac.control, state.actor_params, batch.next_obs)
+            np.testing.assert_allclose(pen, exact, rtol=1e-5)
+            assert float(jnp.min(pen)) > 0
+        else:
+            assert float(jnp.max(jnp.abs(pen))) == 0.0
+    assert losses["entropy"] != losses["actor_loss"]
+    with pytest.raises(ValueError, match="parameter reading"):
+        ma.MAConfig(alpha=1.0, placement="entropy", temporal="rollout")
