@@ -63,9 +63,12 @@ def _cpu_flags() -> list[str]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["sac", "sac_ma_norm_ou"])
-def test_smoke_numbers_are_those_of_before_the_restructure(name, tmp_path, capsys):
-    """SAC runs give the metrics recorded before the one-program restructure, bit for bit
-    (where the platform matches the recording: XLA's CPU code depends on the instruction set)."""
+def test_smoke_numbers_are_kept(name, tmp_path, capsys):
+    """SAC smoke runs give exactly the metrics recorded with this version, and those of before the
+    one-program restructure to float rounding: the restructure itself kept them bit for bit
+    (checked when it landed); making learning rates data in the optimizer state (populations
+    sweep them) changed float rounding, by at most 5e-4 relative after 600 steps. Compared where
+    the platform matches the recording: XLA's CPU code depends on the instruction set."""
     reference = json.loads((DATA / f"reference_smoke_{name}.json").read_text())
     here = (jax.__version__, platform.machine(), _cpu_flags())
     there = (reference["jax"], reference["machine"], reference["cpu_flags"])
@@ -78,7 +81,11 @@ def test_smoke_numbers_are_those_of_before_the_restructure(name, tmp_path, capsy
     capsys.readouterr()
     records = [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS}
                for r in runner.read_metrics(out)]  # fmt: skip
-    assert records == reference["records"]
+    assert records == reference["current"]["records"]
+    for now, before in zip(records, reference["records"], strict=True):
+        assert set(now) >= set(before)
+        for key, value in before.items():
+            assert now[key] == pytest.approx(value, rel=5e-4, abs=1e-9), key
 
 
 def test_one_function_computes_the_feedback_norm(make_env):
