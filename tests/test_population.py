@@ -127,15 +127,16 @@ def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
     # The same population with its members split over two (forced host) devices.
     sharded = str(tmp_path / "sharded")
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    subprocess.run([sys.executable, "-m", "minatt_jax.cli", *base, "--out", sharded], env=env,
-                   check=True, capture_output=True, timeout=900)  # fmt: skip
+    subprocess.run([sys.executable, "-m", "minatt_jax.cli", *base, "--steps", "300", "--out",
+                    sharded], env=env, check=True, capture_output=True, timeout=900)  # fmt: skip
     for name in names:
-        a = runner.read_metrics(os.path.join(straight, name))
+        a = runner.read_metrics(os.path.join(straight, name))[:1]
         b = runner.read_metrics(os.path.join(sharded, name))
+        assert len(b) == 1
         for ra, rb in zip(a, b, strict=True):
             for key in ("return", "feedback_norm", "critic_loss", "energy"):
                 # Two members per device instead of four on one: XLA's CPU kernels order float
-                # sums differently for other batch sizes, and 400 updates compound it (measured:
+                # sums differently for other batch sizes, and the updates compound it (measured:
                 # up to 2.2e-3 relative at 600 steps). A wrong member-to-device mapping would
                 # differ by far more (other seeds and alphas: 10-100%).
                 assert ra[key] == pytest.approx(rb[key], rel=2e-2), (name, key)
