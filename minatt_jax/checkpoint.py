@@ -194,7 +194,8 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
         items = {f"{prefix}/{k}" if k else prefix: v for k, v in named_leaves(template).items()}
         _check_items(run_dir, step, stored, items, prefix)
         wanted.update({k: v for k, v in items.items() if np.size(v) > 0})
-    abstract = _nest({k: ocp.utils.to_shape_dtype_struct(np.asarray(v)) for k, v in wanted.items()})
+    # Shapes and dtypes only: copying the templates (replay buffers) to the host is not needed.
+    abstract = _nest({k: jax.ShapeDtypeStruct(np.shape(v), v.dtype) for k, v in wanted.items()})
     restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), abstract)
     try:
         with _QuietAbsl(), _manager(run_dir, create=False) as manager:

@@ -389,7 +389,6 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
     else:
         if args.seed is not None:
             raise UserError("--seed names one run; a population takes --seeds (e.g. 0-9)")
-        args.seed = None
         base = _train_config(args)
         try:
             seeds = population.parse_seeds(args.seeds) if args.seeds else [base.seed]

@@ -181,7 +181,6 @@ class Program:
         def chunk(states: TrainState) -> tuple[TrainState, dict]:
             return t.parts["run_chunk"](states, states.env_steps[0], True)
 
-        self._chunk_fn = chunk
         self.sharding = self._member_sharding()
         if self.sharding is None:
             self.chunk = jax.jit(chunk, donate_argnums=0)
