@@ -7,7 +7,15 @@ set_name)`` returns a stacked :class:`Task` set for meta-training or meta-testin
 
 from __future__ import annotations
 
-from minatt_jax.envs.base import LocomotionEnv
+import contextlib
+import io
+
+# mujoco.mjx prints a note to stdout when its optional Warp (GPU) backend is absent; the JAX
+# backend this package uses needs no Warp, so the note is only noise in CLI output.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx  # noqa: F401
+
+from minatt_jax.envs.base import LocomotionEnv  # noqa: E402 - after the mjx note is silenced
 from minatt_jax.envs.halfcheetah import HalfCheetah
 from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid
@@ -24,6 +32,7 @@ from minatt_jax.envs.task_sets import (
 from minatt_jax.envs.tasks import (
     Task,
     apply_task,
+    apply_task_to_mj_model,
     make_task,
     num_tasks,
     sample_task,
@@ -80,6 +89,7 @@ __all__ = [
     "UnknownNameError",
     "Walker2d",
     "apply_task",
+    "apply_task_to_mj_model",
     "check_task_set_name",
     "make",
     "make_task",

@@ -122,7 +122,7 @@ class NominalModelFields:
     actuator_gainprm: jax.Array
 
     @classmethod
-    def from_model(cls, model: mjx.Model) -> NominalModelFields:
+    def from_model(cls, model: mjx.Model | mujoco.MjModel) -> NominalModelFields:
         return cls(
             body_mass=jnp.asarray(model.body_mass),
             body_inertia=jnp.asarray(model.body_inertia),
@@ -132,20 +132,51 @@ class NominalModelFields:
         )
 
 
-def apply_task(model: mjx.Model, nominal: NominalModelFields, task: Task) -> mjx.Model:
-    """The MJX model with ``task`` applied; jit- and vmap-safe (task values may be traced)."""
+def perturbed_fields(nominal: NominalModelFields, task: Task) -> dict[str, jax.Array]:
+    """The model fields ``task`` sets (by MJX ``tree_replace`` path), from their nominal values.
+
+    The one statement of how a task enters the physics: :func:`apply_task` writes these into the
+    MJX model, :func:`apply_task_to_mj_model` into a MuJoCo C model.
+    """
     g = jnp.linalg.norm(nominal.gravity) * task.gravity_scale
     gravity = g * jnp.stack([-jnp.sin(task.slope), 0.0 * task.slope, -jnp.cos(task.slope)])
     gain = nominal.actuator_gainprm.at[:, 0].multiply(task.actuator_scale)
-    return model.tree_replace(
-        {
-            "body_mass": nominal.body_mass * task.mass_scale,
-            "body_inertia": nominal.body_inertia * task.mass_scale[:, None],
-            "body_subtreemass": task.body_subtreemass,
-            "body_invweight0": task.body_invweight0,
-            "dof_invweight0": task.dof_invweight0,
-            "geom_friction": nominal.geom_friction * task.friction_scale,
-            "opt.gravity": gravity,
-            "actuator_gainprm": gain,
-        }
-    )
+    return {
+        "body_mass": nominal.body_mass * task.mass_scale,
+        "body_inertia": nominal.body_inertia * task.mass_scale[:, None],
+        "body_subtreemass": task.body_subtreemass,
+        "body_invweight0": task.body_invweight0,
+        "dof_invweight0": task.dof_invweight0,
+        "geom_friction": nominal.geom_friction * task.friction_scale,
+        "opt.gravity": gravity,
+        "actuator_gainprm": gain,
+    }
+
+
+def apply_task(model: mjx.Model, nominal: NominalModelFields, task: Task) -> mjx.Model:
+    """The MJX model with ``task`` applied; jit- and vmap-safe (task values may be traced)."""
+    return model.tree_replace(perturbed_fields(nominal, task))
+
+
+_DERIVED_BY_SET_CONST = ("body_subtreemass", "body_invweight0", "dof_invweight0")
+
+
+def apply_task_to_mj_model(mj_model: mujoco.MjModel, task: Task) -> None:
+    """Applies ``task`` in place to an unperturbed MuJoCo C model (e.g. a Gymnasium
+    environment's), then lets ``mj_setConst`` derive the mass-dependent constants for that model.
+
+    The task's arrays must match the model (same bodies and actuators as the environment the
+    task was made for); raises ValueError otherwise.
+    """
+    if task.mass_scale.shape != (mj_model.nbody,) or task.actuator_scale.shape != (mj_model.nu,):
+        raise ValueError(
+            f"task made for {task.mass_scale.shape[0]} bodies and {task.actuator_scale.shape[0]} "
+            f"actuators; this model has {mj_model.nbody} and {mj_model.nu}"
+        )
+    nominal = NominalModelFields.from_model(mj_model)  # the C model has the same field names
+    for path, value in perturbed_fields(nominal, task).items():
+        if path in _DERIVED_BY_SET_CONST:
+            continue
+        owner = mj_model.opt if path.startswith("opt.") else mj_model
+        getattr(owner, path.removeprefix("opt."))[:] = np.asarray(value, np.float64)
+    mujoco.mj_setConst(mj_model, mujoco.MjData(mj_model))

@@ -1,21 +1,19 @@
-"""minatt-jax: meta-reinforcement learning with minimum attention, end to end in JAX/MJX."""
+"""minatt-jax: meta-reinforcement learning with minimum attention, end to end in JAX/MJX.
 
-import contextlib as _contextlib
-import io as _io
+The public API (``train``, ``train_population``, ``load_run``, ...) loads on first use, so
+``minatt_jax.numpy_policy`` (an exported policy in numpy alone) imports without JAX.
+"""
 
-# mujoco.mjx prints a note to stdout when its optional Warp (GPU) backend is absent; the JAX
-# backend this package uses needs no Warp, so the note is only noise in CLI output.
-with _contextlib.redirect_stdout(_io.StringIO()):
-    from mujoco import mjx as _mjx  # noqa: F401
+from __future__ import annotations
 
-from minatt_jax.api import (  # noqa: E402 - after the mjx note is silenced
-    Run,
-    load_run,
-    make_config,
-    plot_curves,
-    train,
-    train_population,
-)
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
 __all__ = ["Run", "load_run", "make_config", "plot_curves", "train", "train_population"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in __all__:
+        return getattr(importlib.import_module("minatt_jax.api"), name)
+    raise AttributeError(f"module 'minatt_jax' has no attribute {name!r}")

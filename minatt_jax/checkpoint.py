@@ -19,6 +19,7 @@ are taken from the template on restore.
 
 from __future__ import annotations
 
+import io
 import logging
 import os
 from typing import Any, NamedTuple
@@ -28,6 +29,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from minatt_jax import normalizer as obs_norm
+from minatt_jax import run_files
 from minatt_jax.config import TrainConfig
 
 FORMAT = 2
@@ -260,9 +262,9 @@ def save_policy_snapshot(run_dir: str, step: int, actor_params: Any, normalizer:
         "format": np.asarray(FORMAT),
     }
     path = _snapshot_path(run_dir, step)
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    run_files.write_bytes_atomic(path, buffer.getvalue())
     return path
 
 
@@ -324,7 +326,6 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
     """The policy of ``run_dir`` at ``step`` (default: the latest checkpoint) without building a
     trainer: from the step's policy snapshot, or from the checkpoint's agent and normalizer items
     alone when there is no snapshot. No replay or model buffer is allocated."""
-    from minatt_jax import run_files
     from minatt_jax.training import make_agent
 
     config = run_files.load_config(run_dir)

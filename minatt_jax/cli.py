@@ -187,7 +187,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p_eval.add_argument("--episodes", type=_positive_int, default=None)
     p_eval.add_argument("--seed", type=_non_negative_int, default=0)
+    p_eval.add_argument(
+        "--engine",
+        choices=("mjx", "mujoco"),
+        default="mjx",
+        help="mjx: the run's own environment; mujoco: Gymnasium's v5 environment on the MuJoCo "
+        "C engine, same tasks and metrics (needs the mujoco-engine extra)",
+    )
     p_eval.add_argument("--json", action="store_true")
+
+    p_exp = sub.add_parser(
+        "export", help="write a run's policy to one .npz that runs with numpy alone"
+    )
+    p_exp.add_argument("run_dir")
+    p_exp.add_argument("--out", required=True, help="the .npz file to write")
+    p_exp.add_argument("--step", type=_non_negative_int, default=None, help="default: latest")
 
     p_insp = sub.add_parser("inspect", help="list the items saved in a run's checkpoint")
     p_insp.add_argument("run_dir")
@@ -460,14 +474,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
 
     try:
         metrics = runner.evaluate_run(args.run_dir, args.variant, args.episodes, args.seed,
-                                      tuple(args.task))  # fmt: skip
+                                      tuple(args.task), args.engine)  # fmt: skip
     except runner.RunError as e:
         raise UserError(str(e)) from None
     if args.json:
         print(json.dumps(metrics))
     else:
         print(f"{args.run_dir} at step {metrics['step']} on {metrics['variant']} "
-              f"({metrics['episodes']} episodes)")  # fmt: skip
+              f"({metrics['episodes']} episodes, {metrics['engine']})")  # fmt: skip
         for key in ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk",
                     "smoothness"):  # fmt: skip
             print(f"  {key:18s} {metrics[key]:12.4f} +- {metrics[key + '_std']:.4f}")
@@ -552,6 +566,24 @@ def _cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
     return manifest
 
 
+def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import checkpoint, runner
+    from minatt_jax.export import export_policy
+
+    if os.path.isdir(args.out):
+        raise UserError(f"--out {args.out} is a directory; give the .npz file to write")
+    try:
+        metadata = export_policy(args.run_dir, args.out, args.step)
+    except (runner.RunError, checkpoint.CheckpointError) as e:
+        raise UserError(str(e)) from None
+    except OSError as e:
+        raise UserError(f"cannot write {args.out}: {e.strerror or e}") from None
+    print(f"wrote {args.out}: {metadata['env']} policy at step {metadata['step']} "
+          f"({metadata['obs_dim']} observations -> {metadata['act_dim']} actions); load it with "
+          "minatt_jax.numpy_policy.load_policy (numpy only)")  # fmt: skip
+    return metadata
+
+
 def _write_json_atomic(path: str, obj: Any) -> None:
     """Writes JSON atomically; an unwritable path is a user error."""
     from minatt_jax.runner import write_json_atomic
@@ -573,6 +605,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "meta-test": _cmd_meta_test,
         "analyze": _cmd_analyze,
         "inspect": _cmd_inspect,
+        "export": _cmd_export,
     }
     try:
         commands[args.command](args)

@@ -6,6 +6,11 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+# normalize(): (obs - mean) / sqrt(var + EPS), clipped to [-CLIP, CLIP] (exported policies
+# carry both, see export.py).
+EPS = 1e-8
+CLIP = 10.0
+
 
 @struct.dataclass
 class Normalizer:
@@ -33,4 +38,4 @@ def normalize(norm: Normalizer, obs: jax.Array, enabled: bool) -> jax.Array:
     """(obs - mean) / std, clipped to [-10, 10]; identity when ``enabled`` is False."""
     if not enabled:
         return obs
-    return jnp.clip((obs - norm.mean) / jnp.sqrt(norm.var + 1e-8), -10.0, 10.0)
+    return jnp.clip((obs - norm.mean) / jnp.sqrt(norm.var + EPS), -CLIP, CLIP)

@@ -18,17 +18,27 @@ class RunError(Exception):
     """A problem with the run directory (a user-facing error)."""
 
 
-def write_text_atomic(path: str, text: str) -> None:
-    """Writes text through a uniquely named temporary file and a rename: never half a file,
+def write_bytes_atomic(path: str, data: bytes) -> None:
+    """Writes bytes through a uniquely named temporary file and a rename: never half a file,
     even with several processes writing the same path."""
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_text_atomic(path: str, text: str) -> None:
+    """Writes text atomically (see ``write_bytes_atomic``)."""
+    write_bytes_atomic(path, text.encode())
 
 
 def write_json_atomic(path: str, obj: Any) -> None:

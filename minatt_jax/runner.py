@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import checkpoint
+from minatt_jax import checkpoint, mujoco_engine
 from minatt_jax.config import TrainConfig, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's public API
@@ -202,15 +202,23 @@ def train(
     return record
 
 
+ENGINES = ("mjx", "mujoco")
+
+
 def evaluate_run(
     run_dir: str,
     task_set_name: str | None,
     episodes: int | None,
     seed: int = 0,
     task_specs: tuple[str, ...] = (),
+    engine: str = "mjx",
 ) -> dict[str, Any]:
     """Evaluates the latest policy of ``run_dir`` (``checkpoint.load_policy``: no trainer, no
-    buffers) on a task set or custom tasks; returns the metrics."""
+    buffers) on a task set or custom tasks; returns the metrics. ``engine`` "mjx" evaluates in
+    the run's own environment, "mujoco" in Gymnasium's v5 environment on the MuJoCo C engine
+    (``mujoco_engine``) with the same tasks and metrics."""
+    if engine not in ENGINES:
+        raise RunError(f"unknown engine {engine!r}; choose from {', '.join(ENGINES)}")
     try:
         policy = checkpoint.load_policy(run_dir)
     except checkpoint.CheckpointError as e:
@@ -223,11 +231,17 @@ def evaluate_run(
         tasks, labels = envs.resolve_tasks(env, name, task_specs)
     except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise RunError(str(e)) from None
-    evaluator = make_evaluator(env, policy.agent.control, config.max_episode_steps,
-                               config.sac.normalize_obs, episodes)  # fmt: skip
-    result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),
-                       envs.stack_tasks(tasks))  # fmt: skip
-    metrics = summarize(jax.device_get(result), env.dt)
+    if engine == "mujoco":
+        try:
+            metrics = mujoco_engine.evaluate(policy, tasks, episodes, seed)
+        except (ValueError, mujoco_engine.MissingExtraError) as e:
+            raise RunError(str(e)) from None
+    else:
+        evaluator = make_evaluator(env, policy.agent.control, config.max_episode_steps,
+                                   config.sac.normalize_obs, episodes)  # fmt: skip
+        result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),
+                           envs.stack_tasks(tasks))  # fmt: skip
+        metrics = summarize(jax.device_get(result), env.dt)
     variant = ";".join(labels) if task_specs else name
     return {"run_dir": run_dir, "step": policy.step, "variant": variant, "episodes": episodes,
-            **metrics}  # fmt: skip
+            "engine": engine, **metrics}  # fmt: skip

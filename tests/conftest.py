@@ -1,7 +1,8 @@
 """Shared fixtures and a persistent XLA compilation cache for the whole session.
 
-Several tests compile the same programs (in-process and in subprocesses); the cache, in a fresh
-temporary folder per session, lets the later ones load them instead of compiling again.
+Several tests compile the same programs (in-process, in subprocesses and in pytest-xdist
+workers); the cache, in one fresh temporary folder per session that the workers and subprocesses
+inherit through the environment, lets the later ones load them instead of compiling again.
 """
 
 from __future__ import annotations
@@ -14,8 +15,11 @@ import pytest
 
 import minatt_jax.envs as envs
 
-_CACHE = tempfile.mkdtemp(prefix="minatt-jax-xla-cache-")
-os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE  # inherited by subprocesses
+# The controller makes the folder; xdist workers and subprocesses find it in their environment.
+_CACHE = os.environ.get("JAX_COMPILATION_CACHE_DIR") or tempfile.mkdtemp(
+    prefix="minatt-jax-xla-cache-"
+)
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
 jax.config.update("jax_compilation_cache_dir", _CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
