@@ -170,8 +170,9 @@ class CollectStep(NamedTuple):
     env_state: EnvState  # next states, with ended episodes replaced by fresh resets
     episode_return: jax.Array  # running returns, zeroed where an episode ended
     episode_length: jax.Array
-    ended: jax.Array  # (num_envs,) bool: terminated or reached the step limit
-    finished_return: jax.Array  # sum of the returns of the episodes that ended this step
+    ended: jax.Array  # (num_envs,) bool: terminated, reached the step limit, or non-finite
+    finished_return: jax.Array  # sum of the returns of the finite episodes that ended this step
+    finite: jax.Array  # (num_envs,) bool: the step's observation and reward are finite
 
 
 def collect_step(
@@ -188,12 +189,15 @@ def collect_step(
 
     ``reset(key)`` returns fresh states for all environments (new tasks included); it runs
     under a ``lax.cond`` only when some episode ended, so resets cost nothing otherwise. Only
-    termination sets ``terminal`` (time limits are bootstrapped).
+    termination sets ``terminal`` (time limits are bootstrapped). A simulator state that went
+    non-finite (NaN or inf observation or reward) ends its episode and is reset; ``finite``
+    marks it so the caller does not learn from it, and its return is not counted.
     """
     next_state = jax.vmap(env.step)(env_state, action)
     length = episode_length + 1
     terminal = next_state.done
-    ended = (terminal > 0) | (length >= max_episode_steps)
+    finite = jnp.all(jnp.isfinite(next_state.obs), -1) & jnp.isfinite(next_state.reward)
+    ended = (terminal > 0) | (length >= max_episode_steps) | ~finite
     transitions = Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
                               next_obs=next_state.obs, terminal=terminal)  # fmt: skip
     ep_return = episode_return + next_state.reward
@@ -209,5 +213,6 @@ def collect_step(
         episode_return=jnp.where(ended, 0.0, ep_return),
         episode_length=jnp.where(ended, 0, length),
         ended=ended,
-        finished_return=jnp.sum(jnp.where(ended, ep_return, 0.0)),
+        finished_return=jnp.sum(jnp.where(ended & finite, ep_return, 0.0)),
+        finite=finite,
     )

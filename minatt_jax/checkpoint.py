@@ -103,17 +103,27 @@ class _QuietAbsl:
 
 
 def save(run_dir: str, step: int, state: Any) -> None:
-    """Saves ``state`` as checkpoint ``step`` and waits until it is on disk."""
+    """Saves ``state`` as checkpoint ``step`` and waits until it is on disk.
+
+    Orbax writes into a temporary directory and renames it when complete, so a crash or a full
+    disk never leaves a half checkpoint that reads as complete. Raises CheckpointError (one line,
+    orbax's own log lines silenced) when the checkpoint was not written."""
     items = {k: v for k, v in named_leaves(state).items() if np.size(v) > 0}
-    with _manager(run_dir, create=True) as manager:
-        saved = manager.save(
-            step,
-            args=ocp.args.Composite(
-                state=ocp.args.PyTreeSave(_nest(items)),
-                manifest=ocp.args.JsonSave(_manifest(items)),
-            ),
-        )
-        manager.wait_until_finished()
+    try:
+        with _QuietAbsl(), _manager(run_dir, create=True) as manager:
+            saved = manager.save(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.PyTreeSave(_nest(items)),
+                    manifest=ocp.args.JsonSave(_manifest(items)),
+                ),
+            )
+            manager.wait_until_finished()
+    except OSError as e:
+        raise CheckpointError(
+            f"checkpoint {step} could not be written in {run_dir}: {e.strerror or e}; the "
+            "previous checkpoint is intact"
+        ) from None
     if not saved:
         raise CheckpointError(
             f"checkpoint {step} was not written in {run_dir}: a checkpoint at or after it exists"
@@ -126,6 +136,26 @@ def latest_step(run_dir: str) -> int | None:
         return None
     with _manager(run_dir, create=False) as manager:
         return manager.latest_step()
+
+
+def all_steps(run_dir: str) -> list[int]:
+    """The steps of every complete checkpoint, ascending."""
+    if not os.path.isdir(os.path.join(run_dir, "checkpoints")):
+        return []
+    with _manager(run_dir, create=False) as manager:
+        return sorted(manager.all_steps())
+
+
+def set_aside(run_dir: str, step: int) -> str:
+    """Moves checkpoint ``step`` (an unreadable one) out of ``checkpoints/`` into
+    ``checkpoints_unreadable/``, so training can go on from an older one and save over its step
+    again; the files are kept for inspection. Returns where they went."""
+    source = os.path.join(run_dir, "checkpoints", str(step))
+    target_dir = os.path.join(run_dir, "checkpoints_unreadable")
+    os.makedirs(target_dir, exist_ok=True)
+    target = os.path.join(target_dir, f"{step}-{os.getpid()}")
+    os.replace(source, target)
+    return target
 
 
 def describe(run_dir: str, step: int | None = None) -> dict[str, Any]:
@@ -350,4 +380,9 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
             run_dir, {"agent/actor_params": actor_like, "data/normalizer": norm_like}, step
         )
         actor, norm = parts["agent/actor_params"], parts["data/normalizer"]
+    if not all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves((actor, norm))):
+        raise CheckpointError(
+            f"the policy of {run_dir} at step {step} has non-finite weights (its training "
+            "diverged); use an earlier step"
+        )
     return Policy(config, step, env, agent, actor, norm)

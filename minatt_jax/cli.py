@@ -19,7 +19,12 @@ FLOAT32_MAX = 3.4028234663852886e38
 
 
 class UserError(Exception):
-    """An error caused by the user's input; reported in one line, exit status 2."""
+    """An error reported in one line: the user's input (exit status 2), or a run that stopped
+    (diverged: 3; SIGINT: 130; SIGTERM: 143)."""
+
+    def __init__(self, message: str, exit_status: int = EXIT_USER_ERROR) -> None:
+        super().__init__(message)
+        self.exit_status = exit_status
 
 
 class _Parser(argparse.ArgumentParser):
@@ -244,6 +249,8 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
     import minatt_jax.envs as envs
     from minatt_jax import acting
 
+    if args.out:
+        _check_out_file(args.out)
     try:
         envs.check_task_set_name(args.variant)
         env = envs.make(args.env, args.physics)
@@ -361,16 +368,13 @@ def _train_config(args: argparse.Namespace):
                                config.tasks)  # fmt: skip
     except (ValueError, envs.UnknownNameError) as e:
         raise UserError(str(e)) from None
-    if args.resume:
-        stored = base.to_dict()
-        changed = [k for k, v in config.to_dict().items() if v != stored[k] and k != "total_steps"]
-        preset_given = args.preset is not None and args.preset != base.preset
-        if changed or preset_given:
-            what = ", ".join(changed + (["preset"] if preset_given else []))
-            raise UserError(
-                f"{args.out} was made with other settings ({what} differ); "
-                "resume takes them from its config.json (only --steps may change)"
-            )
+    if args.resume and args.preset is not None and args.preset != base.preset:
+        # The other fields are checked by runner.train (only the length and data fields may
+        # change); a preset is a set of fields, so naming another one is refused here.
+        raise UserError(
+            f"{args.out} was made with preset {base.preset}; resume takes its settings from its "
+            "config.json (drop --preset)"
+        )
     return config
 
 
@@ -410,6 +414,7 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
         except ValueError as e:
             raise UserError(str(e)) from None
         swept = [sweep.partition("=")[0].strip() for sweep in args.sweep]
+    _make_out_dir(args.out)
     groups = population.groups(members)
     print(f"population of {len(members)} members in {len(groups)} compiled program(s) -> "
           f"{args.out}", flush=True)  # fmt: skip
@@ -418,7 +423,7 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
             members, args.out, swept, resume=args.resume, log=lambda m: print(m, flush=True)
         )
     except runner.RunError as e:
-        raise UserError(str(e)) from None
+        raise UserError(str(e), e.exit_status) from None
     print(f"\n{'member':40s} {'return':>10s} {'feedback':>10s} {'energy':>8s}")
     for m, r in zip(members, records, strict=True):
         if r:
@@ -441,19 +446,17 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     )
     if not args.resume and os.path.exists(os.path.join(out, "config.json")):
         raise UserError(f"{out} already holds a run; pass --resume or choose another --out")
-    os.makedirs(out, exist_ok=True)
+    _make_out_dir(out)
     print(
         f"training {config.algo} on {config.env} ({config.task_set}) for {config.total_steps} "
         f"env steps, preset {config.preset}, MA alpha {config.ma.alpha:g} ({config.ma.mode})"
         f" -> {out}",
         flush=True,
     )
-    if args.resume and config.total_steps != runner.load_config(out).total_steps:
-        runner.write_json_atomic(os.path.join(out, "config.json"), config.to_dict())
     try:
         record = runner.train(config, out, resume=args.resume, log=lambda m: print(m, flush=True))
     except runner.RunError as e:
-        raise UserError(str(e)) from None
+        raise UserError(str(e), e.exit_status) from None
     if record:
         print("\nfinal evaluation (deterministic policy, mean +- std over episodes)")
         for key in ("return", "feedback_norm", "feedforward_norm", "energy", "jerk", "smoothness"):
@@ -499,6 +502,8 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     if (args.variant is None) == (not args.task):
         raise UserError("meta-test needs either --variant NAME or --task SPEC (one or more)")
     variant = args.variant or "custom"
+    if args.out:
+        _make_out_dir(args.out)
     log = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
     try:
         result = meta_test(args.run_dir, variant if args.variant else "nominal", settings,
@@ -534,10 +539,7 @@ def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
         grid_steps=args.grid_steps, maturation_steps=tuple(args.maturation_steps),
         perturbation=args.perturbation,
     )  # fmt: skip
-    try:
-        os.makedirs(args.out, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"cannot create {args.out}: {e.strerror or e}") from None
+    _make_out_dir(args.out)
     try:
         result = analyze(args.run_dirs, args.out, settings, log=lambda m: print(m, flush=True))
     except runner.RunError as e:
@@ -570,8 +572,7 @@ def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import checkpoint, runner
     from minatt_jax.export import export_policy
 
-    if os.path.isdir(args.out):
-        raise UserError(f"--out {args.out} is a directory; give the .npz file to write")
+    _check_out_file(args.out)
     try:
         metadata = export_policy(args.run_dir, args.out, args.step)
     except (runner.RunError, checkpoint.CheckpointError) as e:
@@ -584,6 +585,33 @@ def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
     return metadata
 
 
+def _make_out_dir(path: str) -> None:
+    """Creates an output directory before any long work, or says in one line why not."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UserError(f"--out {path} is a file, not a directory")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot create --out {path}: {e.strerror or e}") from None
+    if not os.access(path, os.W_OK):
+        raise UserError(f"cannot write into --out {path}: not writable")
+
+
+def _check_out_file(path: str) -> None:
+    """Checks, before any long work, that ``path`` can be written as a file."""
+    if os.path.isdir(path):
+        raise UserError(f"--out {path} is a directory; give the file to write")
+    parent = os.path.dirname(os.path.abspath(path))
+    if os.path.exists(parent) and not os.path.isdir(parent):
+        raise UserError(f"cannot write {path}: {parent} is not a directory")
+    try:
+        os.makedirs(parent, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot write {path}: {e.strerror or e}") from None
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"cannot write {path}: {parent} is not writable")
+
+
 def _write_json_atomic(path: str, obj: Any) -> None:
     """Writes JSON atomically; an unwritable path is a user error."""
     from minatt_jax.runner import write_json_atomic
@@ -592,6 +620,32 @@ def _write_json_atomic(path: str, obj: Any) -> None:
         write_json_atomic(path, obj)
     except OSError as e:
         raise UserError(f"cannot write {path}: {e.strerror or e}") from None
+
+
+class _TerminatedError(Exception):
+    """SIGTERM outside training's own handler."""
+
+
+class _TerminateAsException:
+    """Turns SIGTERM into ``_TerminatedError`` (as Python does SIGINT into KeyboardInterrupt), so a
+    command stopped before or after training exits with one line and 143, not silently."""
+
+    def _raise(self, signum: int, frame: Any) -> None:
+        raise _TerminatedError
+
+    def __enter__(self) -> None:
+        import signal
+        import threading
+
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGTERM, self._raise)
+
+    def __exit__(self, *exc: Any) -> None:
+        import signal
+
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -607,11 +661,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "inspect": _cmd_inspect,
         "export": _cmd_export,
     }
+    terminate = _TerminateAsException()
     try:
-        commands[args.command](args)
+        with terminate:
+            commands[args.command](args)
     except UserError as e:
-        sys.stderr.write(f"minatt-jax: error: {e}\n")
-        return EXIT_USER_ERROR
+        label = "error" if e.exit_status == EXIT_USER_ERROR else "stopped"
+        sys.stderr.write(f"minatt-jax: {label}: {e}\n")
+        return e.exit_status
+    except KeyboardInterrupt:  # Ctrl-C outside training's own handler (start-up, evaluation)
+        sys.stderr.write("minatt-jax: interrupted\n")
+        return 130
+    except _TerminatedError:
+        sys.stderr.write("minatt-jax: terminated\n")
+        return 143
     except BrokenPipeError:  # output piped into a reader that stopped (``| head``): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0

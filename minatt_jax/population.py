@@ -32,24 +32,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from minatt_jax import checkpoint, runner
+from minatt_jax import checkpoint, run_guard, runner
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
-from minatt_jax.run_files import RunError, load_config, write_json_atomic
-from minatt_jax.training import Trainer, TrainState, make_train
+from minatt_jax.run_files import (
+    DivergedError,
+    RunError,
+    load_config,
+    write_json_atomic,
+)
+from minatt_jax.training import (
+    DATA_FIELDS,
+    Trainer,
+    TrainState,
+    config_field,
+    data_values,
+    make_train,
+    with_data,
+)
+
 
 # Fields whose values are data in the train state: members differing only in these share a program.
-DATA_FIELDS = ("seed", "ma.alpha", "sac.actor_lr", "sac.critic_lr", "sac.entropy_lr",
-               "mb.meta_inner_lr")  # fmt: skip
-
-
-def _get(config: TrainConfig, dotted: str) -> Any:
-    value: Any = config
-    for part in dotted.split("."):
-        value = getattr(value, part)
-    return value
-
-
 def parse_seeds(text: str) -> list[int]:
     """``"0-9"``, ``"0,3,5"`` or ``"0-3,7"`` -> a sorted list of distinct seeds (ValueError)."""
     seeds: set[int] = set()
@@ -127,37 +130,11 @@ def member_name(config: TrainConfig, swept: list[str]) -> str:
     """A run-directory name from the swept fields' values and the seed."""
     parts = [config.algo]
     for key in swept:
-        value = _get(config, key)
+        value = config_field(config, key)
         text = f"{value:g}" if isinstance(value, float) else str(value).replace(" ", "")
         parts.append(f"{key.split('.')[-1]}{text}")
     parts.append(f"seed{config.seed}")
     return "_".join(parts)
-
-
-def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
-    """The member's values of the data fields that live in the train state (float32)."""
-    return {k: np.float32(_get(config, k)) for k in DATA_FIELDS if k != "seed"}
-
-
-def with_data(state: TrainState, values: dict[str, jax.Array]) -> TrainState:
-    """A member's state with its data fields (MA weight, learning rates, inner step) set."""
-    agent = state.agent
-
-    def lr(opt_state: Any, value: jax.Array) -> Any:
-        hyper = dict(opt_state.hyperparams)
-        hyper["learning_rate"] = jnp.asarray(value, hyper["learning_rate"].dtype)
-        return opt_state._replace(hyperparams=hyper)
-
-    agent = agent.replace(
-        ma_alpha=values["ma.alpha"],
-        actor_opt=lr(agent.actor_opt, values["sac.actor_lr"]),
-        critic_opt=lr(agent.critic_opt, values["sac.critic_lr"]),
-        entropy_opt=lr(agent.entropy_opt, values["sac.entropy_lr"]),
-    )
-    meta = state.meta
-    if meta is not None:
-        meta = meta.replace(inner_lr=values["mb.meta_inner_lr"])
-    return state.replace(agent=agent, meta=meta)
 
 
 class Program:
@@ -274,7 +251,7 @@ def train_population(
     index_path = os.path.join(out_dir, "population.json")
     index = {
         "members": [
-            {"run_dir": n, **{k: _get(c, k) for k in swept}, "seed": c.seed}
+            {"run_dir": n, **{k: config_field(c, k) for k in swept}, "seed": c.seed}
             for n, c in zip(names, members, strict=True)
         ],  # fmt: skip
         "swept": swept,
@@ -296,19 +273,27 @@ def train_population(
             write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
         write_json_atomic(index_path, index)
     last: list[dict[str, Any]] = [{} for _ in members]
-    for g, (indices, program) in enumerate(zip(index["groups"], programs, strict=True)):
-        group = program.members
-        mib = program.bytes_per_member / 2**20
-        log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members ({group[0].algo}, "
-            f"{group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
-        records = _train_group(program, [dirs[i] for i in indices], resume, log)
-        for i, r in zip(indices, records, strict=True):
-            last[i] = r
+    try:
+        with run_guard.lock_run(out_dir), run_guard.StopSignals() as stop:
+            for g, (indices, program) in enumerate(zip(index["groups"], programs, strict=True)):
+                group = program.members
+                mib = program.bytes_per_member / 2**20
+                log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members "
+                    f"({group[0].algo}, {group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
+                records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
+                for i, r in zip(indices, records, strict=True):
+                    last[i] = r
+    except run_guard.RunLockedError as e:
+        raise RunError(str(e)) from None
     return last
 
 
 def _train_group(
-    program: Program, dirs: list[str], resume: bool, log: Callable[[str], None]
+    program: Program,
+    dirs: list[str],
+    resume: bool,
+    log: Callable[[str], None],
+    stop: run_guard.StopSignals,
 ) -> list[dict[str, Any]]:
     config, trainer = program.config, program.trainer
     states = program.init()
@@ -337,7 +322,10 @@ def _train_group(
     records: list[dict[str, Any]] = [{} for _ in dirs]
     start = time.perf_counter()
     total = max(c.total_steps for c in program.members)
+    out_dir = os.path.dirname(os.path.abspath(dirs[0]))
     while int(states.env_steps[0]) < total:
+        if stop.received is not None:
+            raise runner.stopped_error(stop, dirs[0], out_dir)
         t0 = time.perf_counter()
         states, metrics = chunk(states)
         states = jax.block_until_ready(states)
@@ -352,10 +340,21 @@ def _train_group(
         metrics = jax.device_get(metrics)
         timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
                    "wall_s": time.perf_counter() - start}  # fmt: skip
+        chunk_records = []
         for i, d in enumerate(dirs):
             evaluation = summarize(member(results, i), trainer.env.dt)
             record = runner.make_record(step, evaluation, member(metrics, i), timings,
                                         trainer.steps_per_chunk)  # fmt: skip
+            bad = runner.non_finite(record) + runner.non_finite_state(member(states, i))
+            if bad:  # checked for every member before any member's step is written
+                raise DivergedError(
+                    f"member {os.path.basename(d)} went non-finite at step {step} "
+                    f"({', '.join(bad[:4])}); nothing of this chunk was saved and every member "
+                    f"keeps checkpoint {checkpoint.latest_step(d)}. Change that member's "
+                    "settings (its config.json) or train it alone"
+                )
+            chunk_records.append(record)
+        for i, (d, record) in enumerate(zip(dirs, chunk_records, strict=True)):
             # Rates per member: the population's aggregate is len(dirs) times these.
             runner.write_step(d, step, member(states, i), record, writers[i])
             records[i] = record

@@ -15,7 +15,24 @@ from minatt_jax.config import TrainConfig, resolve
 
 
 class RunError(Exception):
-    """A problem with the run directory (a user-facing error)."""
+    """A problem with the run directory (a user-facing error); the CLI exits with
+    ``exit_status``."""
+
+    exit_status = 2
+
+
+class DivergedError(RunError):
+    """Training went non-finite; the last good checkpoint is kept."""
+
+    exit_status = 3
+
+
+class StoppedError(RunError):
+    """Training stopped by SIGINT or SIGTERM after checkpointing (exit 130 or 143)."""
+
+    def __init__(self, message: str, exit_status: int) -> None:
+        super().__init__(message)
+        self.exit_status = exit_status
 
 
 def write_bytes_atomic(path: str, data: bytes) -> None:

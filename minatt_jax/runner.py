@@ -10,26 +10,36 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import tempfile
 import time
 from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import checkpoint, mujoco_engine
-from minatt_jax.config import TrainConfig, resolve
+from minatt_jax import checkpoint, mujoco_engine, run_guard
+from minatt_jax.config import TrainConfig, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's public API
+    DivergedError,
     RunError,
+    StoppedError,
     load_config,
     read_metrics,
     write_json_atomic,
     write_text_atomic,
 )
-from minatt_jax.training import make_train
+from minatt_jax.training import (
+    DATA_FIELDS,
+    config_field,
+    data_values,
+    make_train,
+    with_data,
+)
 
 TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "chunk_s", "eval_s",
                "compile_s")  # fmt: skip
@@ -113,6 +123,50 @@ def write_step(run_dir: str, step: int, state: Any, record: dict, writer: Any) -
         raise RunError(str(e)) from None
 
 
+def _restore_newest_intact(run_dir: str, state: Any, log: Callable[[str], None]) -> tuple[int, Any]:
+    """The newest checkpoint that reads back, setting aside newer unreadable ones (and saying
+    so); (0, state) when there is none. RunError when every checkpoint is unreadable."""
+    steps = checkpoint.all_steps(run_dir)
+    errors = []
+    for step in reversed(steps):
+        try:
+            restored_step, restored = checkpoint.restore(run_dir, state, step)
+        except checkpoint.CheckpointError as e:
+            errors.append(str(e))
+            continue
+        for newer in steps[steps.index(step) + 1 :]:
+            where = checkpoint.set_aside(run_dir, newer)
+            log(f"checkpoint {newer} is unreadable; resuming from checkpoint {step} "
+                f"(the unreadable one is kept in {where})")  # fmt: skip
+        return restored_step, jax.device_put(restored, jax.devices()[0])
+    if steps:
+        raise RunError(f"no checkpoint in {run_dir} can be read: {errors[0]}")
+    return 0, state
+
+
+def _changed_data(stored: TrainConfig, config: TrainConfig) -> dict[str, Any]:
+    """The data fields (``training.DATA_FIELDS`` but the seed) whose values differ."""
+    return {k: config_field(config, k) for k in DATA_FIELDS
+            if k != "seed" and config_field(config, k) != config_field(stored, k)}  # fmt: skip
+
+
+def _check_resumable(stored: TrainConfig, config: TrainConfig, run_dir: str) -> None:
+    """Refuses a resume whose configuration differs in more than the length and data fields."""
+    as_stored = {k: config_field(stored, k) for k in _changed_data(stored, config)}
+    same = replace_fields(config, {"total_steps": stored.total_steps, **as_stored})
+    if same.to_dict() != stored.to_dict():
+        differ = [k for k, v in same.to_dict().items() if v != stored.to_dict()[k]]
+        raise RunError(
+            f"{run_dir} was made with other settings ({', '.join(differ)} differ); resume takes "
+            f"them from its config.json (only the length and {', '.join(DATA_FIELDS[1:])} may "
+            "change)"
+        )
+
+
+def _resume_hint(run_dir: str) -> str:
+    return f"minatt-jax train --out {run_dir} --resume"
+
+
 def train(
     config: TrainConfig,
     run_dir: str,
@@ -121,12 +175,30 @@ def train(
 ) -> dict[str, Any]:
     """Trains (or resumes) the run in ``run_dir``; returns the last metrics record.
 
-    ``config`` is resolved here (``config.resolve``) when it is not already.
+    ``config`` is resolved here (``config.resolve``) when it is not already. One process at a
+    time trains a directory (``run_guard.lock_run``). SIGINT/SIGTERM stop after the current chunk
+    with its checkpoint written (StoppedError, exit 130/143); non-finite training stops before
+    anything of the bad chunk is written (DivergedError, exit 3). A resume may change the length
+    and the data fields (alpha, learning rates, inner step size), which never recompile.
     """
     try:
         config = resolve(config)
     except ValueError as e:
         raise RunError(str(e)) from None
+    try:
+        with run_guard.lock_run(run_dir), run_guard.StopSignals() as stop:
+            return _train(config, run_dir, resume, log, stop)
+    except run_guard.RunLockedError as e:
+        raise RunError(str(e)) from None
+
+
+def _train(
+    config: TrainConfig,
+    run_dir: str,
+    resume: bool,
+    log: Callable[[str], None],
+    stop: run_guard.StopSignals,
+) -> dict[str, Any]:
     trainer = make_train(config)
     if config.planned_steps != config.total_steps:
         chunks = config.planned_steps // config.eval_every
@@ -136,16 +208,24 @@ def train(
     config_path = os.path.join(run_dir, "config.json")
     if resume:
         stored = load_config(run_dir)
-        if stored.to_dict() != config.to_dict():
-            raise RunError(f"{run_dir} was made with a different configuration; see {config_path}")
+        _check_resumable(stored, config, run_dir)
         state = trainer.init(jax.random.PRNGKey(config.seed))
-        step = 0
-        if checkpoint.latest_step(run_dir) is not None:
-            try:
-                step, state = checkpoint.restore(run_dir, state)
-            except checkpoint.CheckpointError as e:
-                raise RunError(str(e)) from None
-            state = jax.device_put(state, jax.devices()[0])
+        step, state = _restore_newest_intact(run_dir, state, log)
+        if step > config.planned_steps:
+            raise RunError(f"{run_dir} is already at step {step}; ask for at least that many "
+                           "steps to resume it")  # fmt: skip
+        changed = _changed_data(stored, config)
+        if changed:
+            state = with_data(state, {**data_values(config)})
+            log(
+                f"resuming with {', '.join(f'{k}={v:g}' for k, v in changed.items())} "
+                f"(was {', '.join(f'{k}={config_field(stored, k):g}' for k in changed)})"
+            )
+        if stored.to_dict() != config.to_dict():  # only now: the resume is valid
+            write_json_atomic(config_path, config.to_dict())
+        if step and step not in checkpoint.snapshot_steps(run_dir):  # lost in a crash
+            checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params,
+                                            state.data.normalizer)  # fmt: skip
         # Records after the checkpoint are written again, identically, by the rerun.
         keep_metrics_until(run_dir, step)
         log(f"resumed {run_dir} at env step {step}")
@@ -166,40 +246,71 @@ def train(
     eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
     record: dict[str, Any] = {}
     start = time.perf_counter()
-    while int(state.env_steps) < config.total_steps:
-        t0 = time.perf_counter()
-        state, train_metrics = chunk(state)
-        state = jax.block_until_ready(state)
-        chunk_s = time.perf_counter() - t0
-        step = int(state.env_steps)
-        t0 = time.perf_counter()
-        result = trainer.evaluate(state, jax.random.fold_in(eval_key, step), trainer.task_set)
-        evaluation = summarize(jax.device_get(result), trainer.env.dt)
-        eval_s = time.perf_counter() - t0
-        elapsed = time.perf_counter() - start
-        # The latest chunk's rate: the first chunks are faster (warm-up steps make no updates).
-        chunks_left = -(-(config.total_steps - step) // trainer.steps_per_chunk)
-        remaining = chunks_left * (chunk_s + eval_s)
-        timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
-                   "wall_s": elapsed}  # fmt: skip
-        record = make_record(step, evaluation, jax.device_get(train_metrics), timings,
-                             trainer.steps_per_chunk)  # fmt: skip
-        bad = non_finite(record)
-        if bad:
-            raise RunError(
-                f"training diverged at step {step}: non-finite {', '.join(bad[:4])}; nothing of "
-                f"this step was saved (the last checkpoint is step "
-                f"{checkpoint.latest_step(run_dir)}). Lower the weights or learning rates"
+    try:
+        while int(state.env_steps) < config.total_steps:
+            if stop.received is not None:
+                raise stopped_error(stop, run_dir)
+            t0 = time.perf_counter()
+            state, train_metrics = chunk(state)
+            state = jax.block_until_ready(state)
+            chunk_s = time.perf_counter() - t0
+            step = int(state.env_steps)
+            t0 = time.perf_counter()
+            result = trainer.evaluate(state, jax.random.fold_in(eval_key, step), trainer.task_set)
+            evaluation = summarize(jax.device_get(result), trainer.env.dt)
+            eval_s = time.perf_counter() - t0
+            elapsed = time.perf_counter() - start
+            # The latest chunk's rate: the first chunks are faster (warm-up makes no updates).
+            chunks_left = -(-(config.total_steps - step) // trainer.steps_per_chunk)
+            remaining = chunks_left * (chunk_s + eval_s)
+            timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
+                       "wall_s": elapsed}  # fmt: skip
+            record = make_record(step, evaluation, jax.device_get(train_metrics), timings,
+                                 trainer.steps_per_chunk)  # fmt: skip
+            bad = non_finite(record) + non_finite_state(state)
+            if bad:
+                last = checkpoint.latest_step(run_dir)
+                raise DivergedError(
+                    f"training went non-finite at step {step} ({', '.join(bad[:4])}); nothing of "
+                    f"this chunk was saved and checkpoint {last} is kept. Lower alpha or the "
+                    f"learning rates and continue from it: {_resume_hint(run_dir)} --alpha A "
+                    "(or --set sac.actor_lr=...)"
+                )
+            write_step(run_dir, step, state, record, writer)
+            log(
+                f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
+                f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "
+                f"env steps/s | ETA {remaining / 60:6.1f} min"
             )
-        write_step(run_dir, step, state, record, writer)
-        log(
-            f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
-            f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "
-            f"env steps/s | ETA {remaining / 60:6.1f} min"
-        )
-    if writer is not None:
-        writer.close()
+        if stop.received is not None and int(state.env_steps) < config.total_steps:
+            raise stopped_error(stop, run_dir)
+    finally:
+        if writer is not None:
+            writer.close()
     return record
+
+
+def stopped_error(
+    stop: run_guard.StopSignals, run_dir: str, resume_dir: str | None = None
+) -> StoppedError:
+    """The error that ends a run stopped by a signal: what was saved (``run_dir``'s latest
+    checkpoint) and the command that resumes it (on ``resume_dir``, default ``run_dir``)."""
+    last = checkpoint.latest_step(run_dir)
+    saved = f"checkpoint {last} is complete" if last is not None else "nothing was trained yet"
+    name = signal.Signals(stop.received).name
+    hint = _resume_hint(resume_dir or run_dir)
+    return StoppedError(f"stopped by {name}: {saved}; resume with: {hint}", stop.exit_status)
+
+
+def non_finite_state(state: Any) -> list[str]:
+    """The agent's parameter groups that hold non-finite values (checked once per chunk)."""
+    agent = state.agent
+    groups = {"actor parameters": agent.actor_params, "critic parameters": agent.critic_params}
+    if state.model is not None:
+        groups["model parameters"] = state.model.params
+    finite = {name: jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+              for name, tree in groups.items()}  # fmt: skip
+    return [name for name, ok in jax.device_get(finite).items() if not ok]
 
 
 ENGINES = ("mjx", "mujoco")

@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from brax.envs.base import State as EnvState
 from flax import struct
 
@@ -120,6 +121,46 @@ def make_meta(config: TrainConfig, sac: SAC) -> MetaStep:
                           config.sac.gamma, outer=mb.meta_outer, max_kl=mb.trpo_max_kl)  # fmt: skip
 
 
+# Configuration fields that live in the train state as data (per-member values in a
+# population; changeable on resume): changing them never recompiles the program.
+DATA_FIELDS = ("seed", "ma.alpha", "sac.actor_lr", "sac.critic_lr", "sac.entropy_lr",
+               "mb.meta_inner_lr")  # fmt: skip
+
+
+def config_field(config: TrainConfig, dotted: str) -> Any:
+    """The value of a dotted field name (``"ma.alpha"``) of a configuration."""
+    value: Any = config
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
+    """The member's values of the data fields that live in the train state (float32)."""
+    return {k: np.float32(config_field(config, k)) for k in DATA_FIELDS if k != "seed"}
+
+
+def with_data(state: TrainState, values: dict[str, jax.Array]) -> TrainState:
+    """A member's state with its data fields (MA weight, learning rates, inner step) set."""
+    agent = state.agent
+
+    def lr(opt_state: Any, value: jax.Array) -> Any:
+        hyper = dict(opt_state.hyperparams)
+        hyper["learning_rate"] = jnp.asarray(value, hyper["learning_rate"].dtype)
+        return opt_state._replace(hyperparams=hyper)
+
+    agent = agent.replace(
+        ma_alpha=values["ma.alpha"],
+        actor_opt=lr(agent.actor_opt, values["sac.actor_lr"]),
+        critic_opt=lr(agent.critic_opt, values["sac.critic_lr"]),
+        entropy_opt=lr(agent.entropy_opt, values["sac.entropy_lr"]),
+    )
+    meta = state.meta
+    if meta is not None:
+        meta = meta.replace(inner_lr=values["mb.meta_inner_lr"])
+    return state.replace(agent=agent, meta=meta)
+
+
 def training_tasks(config: TrainConfig, env: envs.LocomotionEnv) -> envs.Task:
     """The stacked tasks a run trains on: its custom ``tasks`` or its named ``task_set``."""
     tasks, _ = envs.resolve_tasks(env, config.task_set, config.tasks)
@@ -136,6 +177,8 @@ def summarize_chunk(metrics: dict, names: tuple[str, ...], updates_per_step: int
         episodes > 0, jnp.sum(metrics["finished_return_sum"]) / jnp.maximum(episodes, 1), 0.0
     )
     summary["train_episodes"] = episodes
+    # Simulator steps that went non-finite, were reset and not learned from.
+    summary["env_non_finite_resets"] = jnp.sum(metrics["env_non_finite"])
     summary["updates"] = jnp.sum(metrics["updated"]) * updates_per_step
     return summary
 
@@ -266,11 +309,15 @@ def make_train(config: TrainConfig) -> Trainer:
         return ts.replace(collector=collector, env_steps=ts.env_steps + n), s
 
     # ---- store ----------------------------------------------------------------------------
-    def store(data: Data, transitions: Transitions) -> Data:
+    def store(data: Data, transitions: Transitions, finite: jax.Array) -> Data:
+        """Stores the finite transitions (a non-finite simulator step is never learned from)."""
         normalizer = data.normalizer
         if norm_on:
-            normalizer = obs_norm.update(normalizer, transitions.next_obs)
-        return data.replace(real=replay.insert(data.real, transitions), normalizer=normalizer)
+            updated = obs_norm.update(normalizer, transitions.next_obs)
+            normalizer = jax.tree.map(lambda a, b: jnp.where(jnp.all(finite), a, b),
+                                      updated, normalizer)  # fmt: skip
+        real = replay.insert_masked(data.real, transitions, finite.astype(jnp.float32))
+        return data.replace(real=real, normalizer=normalizer)
 
     # ---- model phase ----------------------------------------------------------------------
     def rollout_length(env_steps: jax.Array) -> jax.Array:
@@ -395,7 +442,7 @@ def make_train(config: TrainConfig) -> Trainer:
             k_slot = k_model = None
         ts = ts.replace(rng=rng)
         ts, s = collect(ts, (k_act, k_reset, k_slot), steps_before)
-        ts = ts.replace(data=store(ts.data, s.transitions))
+        ts = ts.replace(data=store(ts.data, s.transitions, s.finite))
         steps = steps_before + n
         out = {}
         if model_based:
@@ -410,8 +457,9 @@ def make_train(config: TrainConfig) -> Trainer:
         ts, update_metrics = update_agent(ts, k_update, steps)
         out.update(
             update_metrics,
-            episodes_finished=jnp.sum(s.ended.astype(jnp.float32)),
+            episodes_finished=jnp.sum((s.ended & s.finite).astype(jnp.float32)),
             finished_return_sum=s.finished_return,
+            env_non_finite=jnp.sum((~s.finite).astype(jnp.float32)),
         )
         return ts, out
 

@@ -1,0 +1,93 @@
+"""Guards of a training process: one writer per run directory, and signals that stop cleanly.
+
+* :func:`lock_run` takes an exclusive ``flock`` on ``RUN_DIR/.lock`` for the life of the
+  training; the kernel releases it when the process dies (even by SIGKILL), so a stale lock never
+  blocks a resume, while a second live ``train`` on the same directory is refused.
+* :class:`StopSignals` turns SIGINT and SIGTERM into a request the training loop reads between
+  chunks: the loop finishes the chunk it is in, checkpoints, and exits with 130 (SIGINT) or
+  143 (SIGTERM). A second signal exits at once with the same status; checkpoints are written to a
+  temporary directory and renamed, so the last complete one is never damaged.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import signal
+import sys
+from collections.abc import Iterator
+from types import FrameType
+
+
+class RunLockedError(Exception):
+    """Another live process holds the run directory."""
+
+
+@contextlib.contextmanager
+def lock_run(run_dir: str) -> Iterator[None]:
+    """Holds ``RUN_DIR/.lock`` exclusively; raises RunLockedError when another process has it."""
+    os.makedirs(run_dir, exist_ok=True)
+    path = os.path.join(run_dir, ".lock")
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            raise RunLockedError(
+                f"{run_dir} is being trained by another process (pid {holder}); wait for it or "
+                "stop it first"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+class StopSignals:
+    """Context manager: records the first SIGINT/SIGTERM in ``received``; a second one exits.
+
+    Only installs handlers in the main thread (Python delivers signals there); elsewhere it is
+    inert and signals keep their defaults.
+    """
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._previous: dict[int, object] = {}
+
+    @property
+    def exit_status(self) -> int:
+        return EXIT_STATUS.get(self.received, 1) if self.received is not None else 0
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        del frame
+        if self.received is not None:
+            sys.stderr.write(
+                f"\nminatt-jax: second {signal.Signals(signum).name}: exiting now; the last "
+                "complete checkpoint is kept\n"
+            )
+            sys.stderr.flush()
+            os._exit(EXIT_STATUS.get(signum, 1))
+        self.received = signum
+        sys.stderr.write(
+            f"\nminatt-jax: {signal.Signals(signum).name} received: stopping after the current "
+            "chunk (send it again to exit at once)\n"
+        )
+        sys.stderr.flush()
+
+    def __enter__(self) -> StopSignals:
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for signum in EXIT_STATUS:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)

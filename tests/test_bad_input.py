@@ -1,0 +1,122 @@
+"""Every bad input is one line on stderr and exit status 2, and damages nothing already written.
+
+The cases run in-process against one small run directory (a config, a checkpoint at step 600
+and a policy snapshot, made without training) whose files are hashed before and after each case.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import jax
+import pytest
+
+from minatt_jax import checkpoint, run_files
+from minatt_jax.cli import main
+from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.training import make_train
+
+CONFIG = resolve(with_overrides(PRESETS["smoke"], total_steps=300))
+
+
+@pytest.fixture(scope="module")
+def paths(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bad")
+    run = str(root / "run")
+    run_files.write_json_atomic(os.path.join(run, "config.json"), CONFIG.to_dict())
+    state = make_train(CONFIG).init(jax.random.PRNGKey(0))
+    state = state.replace(env_steps=state.env_steps + 600)
+    checkpoint.save(run, 600, state)
+    checkpoint.save_policy_snapshot(run, 600, state.agent.actor_params, state.data.normalizer)
+    with open(os.path.join(run, "metrics.jsonl"), "w") as f:
+        f.write('{"step": 600, "return": 1.0}\n')
+    a_file = str(root / "a_file")
+    open(a_file, "w").write("not a directory")
+    corrupt = str(root / "corrupt")
+    os.makedirs(corrupt)
+    open(os.path.join(corrupt, "config.json"), "w").write('{"env": "hopper", "sac": 3}')
+    return {"RUN": run, "FILE": a_file, "CORRUPT": corrupt, "MISSING": str(root / "missing"),
+            "ROOT": str(root)}  # fmt: skip
+
+
+BIG = "99999999999999999999"
+CASES = [
+    (["train", "--env", "hoppr"], "unknown environment 'hoppr'"),
+    (["train", "--algo", "ppo"], "unknown algorithm 'ppo'"),
+    (["train", "--alpha=-1"], "expected a finite number >= 0"),
+    (["train", "--alpha", "1e39"], "float32"),
+    (["train", "--alpha", "nan"], "expected a finite number"),
+    (["train", "--steps", "0"], "expected a positive integer"),
+    (["train", "--steps", "ten"], "expected a positive integer"),
+    (["train", "--seed", BIG], "seed"),
+    (["train", "--seed", "-1"], "expected an integer >= 0"),
+    (["train", "--variant", "moon"], "unknown variant 'moon'"),
+    (["train", "--set", "ma.nope=1"], "unknown"),
+    (["train", "--set", "sac.hidden=abc"], "sac.hidden"),
+    (["train", "--set", "ma.alpha"], "group.field=value"),
+    (["train", "--task", "mass=-1"], "mass"),
+    (["train", "--task", "crippled=nojoint"], "nojoint"),
+    (["train", "--task", "foo=1"], "unknown field 'foo'"),
+    (["train", "--preset", "huge"], "invalid choice"),
+    (["train", "--out", "{FILE}"], "not a directory"),
+    (["train", "--out", "/proc/minatt-jax-run"], "cannot"),
+    (["train", "--preset", "smoke", "--out", "{RUN}"], "already holds a run"),
+    (["train", "--resume", "--out", "{MISSING}"], "does not exist"),
+    (["train", "--resume"], "--resume needs --out"),
+    (["train", "--resume", "--out", "{RUN}", "--env", "walker2d"], "other settings (env"),
+    (["train", "--resume", "--out", "{RUN}", "--preset", "paper"], "drop --preset"),
+    (["train", "--resume", "--out", "{RUN}", "--steps", "100"], "already at step 600"),
+    (["train", "--resume", "--out", "{CORRUPT}"], "config.json"),
+    (["train", "--seeds", "0-3", "--seed", "1", "--out", "{MISSING}"], "--seeds"),
+    (["train", "--seeds", "3-1", "--out", "{MISSING}"], "seeds"),
+    (["train", "--sweep", "ma.alpha=", "--out", "{MISSING}"], "ma.alpha"),
+    (["train", "--sweep", "ma.nope=1,2", "--out", "{MISSING}"], "ma.nope"),
+    (["rollout", "--env", "hopper", "--steps", "10000000000"], "too large"),
+    (["rollout", "--env", "hopper", "--seed", BIG], "seed"),
+    (["rollout", "--env", "hopper", "--variant", "icy"], "unknown variant 'icy'"),
+    (["rollout", "--env", "hopper", "--policy", "smart"], "invalid choice"),
+    (["rollout", "--env", "hopper", "--out", "{FILE}/x.json"], "cannot write"),
+    (["evaluate", "{MISSING}"], "does not exist"),
+    (["evaluate", "{FILE}"], "does not exist"),
+    (["evaluate", "{ROOT}"], "no config.json"),
+    (["evaluate", "{CORRUPT}"], "config.json"),
+    (["evaluate", "{RUN}", "--variant", "icy"], "unknown variant 'icy'"),
+    (["evaluate", "{RUN}", "--task", "mass=0"], "mass"),
+    (["evaluate", "{RUN}", "--engine", "bullet"], "invalid choice"),
+    (["meta-test", "{RUN}", "--variant", "icy"], "unknown variant 'icy'"),
+    (["meta-test", "{MISSING}", "--variant", "mass"], "does not exist"),
+    (["analyze", "{MISSING}", "--out", "{ROOT}/report"], "does not exist"),
+    (["inspect", "{MISSING}"], "does not exist"),
+    (["inspect", "{RUN}", "--step", "7"], "7"),
+    (["export", "{RUN}", "--out", "{ROOT}"], "is a directory"),
+    (["export", "{RUN}", "--out", "/proc/policy.npz"], "cannot write"),
+    (["export", "{MISSING}", "--out", "{ROOT}/p.npz"], "does not exist"),
+]
+
+
+def _digest(root: str) -> dict[str, str]:
+    out = {}
+    for base, _, files in os.walk(root):
+        for name in files:
+            if name == ".lock":
+                continue
+            path = os.path.join(base, name)
+            out[path] = hashlib.sha256(open(path, "rb").read()).hexdigest()
+    return out
+
+
+@pytest.mark.parametrize("argv, message", CASES, ids=[" ".join(a) for a, _ in CASES])
+def test_bad_input_is_one_line_and_exit_2(paths, argv, message, capsys):
+    argv = [a.format(**paths) for a in argv]
+    before = _digest(paths["ROOT"])
+    try:
+        status = main(argv)
+    except SystemExit as e:  # argparse
+        status = e.code
+    err = capsys.readouterr().err
+    assert status == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("minatt-jax: error:"), err
+    assert message in lines[0]
+    assert _digest(paths["ROOT"]) == before  # nothing already written was changed
