@@ -17,6 +17,9 @@ from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
 from minatt_jax.training import make_train
 
+# One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("test_bad_input")
+
 CONFIG = resolve(with_overrides(PRESETS["smoke"], total_steps=300))
 
 

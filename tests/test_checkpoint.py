@@ -15,6 +15,9 @@ from minatt_jax import training as train_module
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
+# One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("test_checkpoint")
+
 CONFIG = with_overrides(PRESETS["smoke"], total_steps=300)
 
 

@@ -10,6 +10,9 @@ import pytest
 
 from minatt_jax.cli import main as _main
 
+# One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("test_meta_test")
+
 
 def main(argv):
     """The CLI's exit status, whether it returns it or argparse raises SystemExit."""

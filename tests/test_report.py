@@ -12,6 +12,9 @@ from minatt_jax.cli import main as _main
 from minatt_jax.config import PRESETS, with_overrides
 from minatt_jax.report import FIGURES, Run, aggregate_tables, tables_markdown
 
+# One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("test_report")
+
 
 def main(argv):
     """The CLI's exit status, whether it returns it or argparse raises SystemExit."""
