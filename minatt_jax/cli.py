@@ -414,7 +414,8 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
         except ValueError as e:
             raise UserError(str(e)) from None
         swept = [sweep.partition("=")[0].strip() for sweep in args.sweep]
-    _make_out_dir(args.out)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise UserError(f"--out {args.out} is a file, not a directory")
     groups = population.groups(members)
     print(f"population of {len(members)} members in {len(groups)} compiled program(s) -> "
           f"{args.out}", flush=True)  # fmt: skip

@@ -36,7 +36,9 @@ class MBConfig:
       model_train_every: env steps between model fits (each followed by a rollout).
       rollout_batch: start states per rollout (split evenly over the slots).
       rollout_schedule: (start_epoch, end_epoch, min_len, max_len): the rollout length grows
-        linearly from min_len to max_len between the two epochs (MBPO's hopper schedule).
+        linearly from min_len to max_len between the two epochs (official MBPO's and mbrl-lib's
+        hopper schedule, epochs 20 -> 150, length 1 -> 15; before round 2 this default ended at
+        epoch 100).
       model_buffer_size: capacity of the imagined-transition buffer (all slots together).
       real_ratio: fraction of each agent batch drawn from real data (the rest from the model).
       obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
@@ -51,7 +53,7 @@ class MBConfig:
     epoch_length: int = 1000
     model_train_every: int = 250
     rollout_batch: int = 100_000
-    rollout_schedule: tuple[int, int, int, int] = (20, 100, 1, 15)
+    rollout_schedule: tuple[int, int, int, int] = (20, 150, 1, 15)
     model_buffer_size: int = 2_000_000
     real_ratio: float = 0.05
     obs_clip: float = 100.0

@@ -268,10 +268,14 @@ def train_population(
     else:
         if os.path.exists(index_path):
             raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
-        for d, c in zip(dirs, members, strict=True):
-            os.makedirs(d, exist_ok=True)
-            write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
-        write_json_atomic(index_path, index)
+        try:
+            for d, c in zip(dirs, members, strict=True):
+                os.makedirs(d, exist_ok=True)
+                write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
+            write_json_atomic(index_path, index)
+        except OSError as e:
+            reason = e.strerror or e
+            raise RunError(f"cannot write the population into {out_dir}: {reason}") from None
     last: list[dict[str, Any]] = [{} for _ in members]
     try:
         with run_guard.lock_run(out_dir), run_guard.StopSignals() as stop:

@@ -45,6 +45,11 @@ TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "
                "compile_s")  # fmt: skip
 
 
+def without_timings(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Records without their wall-clock fields: what an exact resume reproduces."""
+    return [{k: v for k, v in r.items() if k not in TIMING_KEYS} for r in records]
+
+
 def _json_value(v: Any) -> float | list:
     """A metric as JSON: a float, or a list for per-member arrays (holdout MSE, elites)."""
     v = np.asarray(v)

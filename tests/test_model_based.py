@@ -50,10 +50,6 @@ def test_model_based_chunk_compiles_once(algo):
     assert trainer.train_chunk._cache_size() == 1
 
 
-def _comparable(records):
-    return [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS} for r in records]
-
-
 def test_mbmpo_resume_is_exact(tmp_path):
     base = ["train", "--env", "hopper", "--algo", "mbmpo", "--alpha", "1", "--preset", "smoke"]
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
@@ -62,7 +58,7 @@ def test_mbmpo_resume_is_exact(tmp_path):
     assert main([*base, "--steps", "600", "--out", split, "--resume"]) == 0
     a, b = runner.read_metrics(straight), runner.read_metrics(split)
     assert [r["step"] for r in a] == [300, 600]
-    assert _comparable(a) == _comparable(b)
+    assert runner.without_timings(a) == runner.without_timings(b)
     assert "model_holdout_mse" in a[-1] and len(a[-1]["model_elites"]) == 2
     with open(tmp_path / "split" / "config.json") as f:
         assert json.load(f)["task_set"] == "train"  # mbmpo's default task set

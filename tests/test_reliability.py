@@ -31,8 +31,7 @@ def _cli(argv, capsys):
 
 
 def _records(run_dir):
-    return [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS}
-            for r in runner.read_metrics(run_dir)]  # fmt: skip
+    return runner.without_timings(runner.read_metrics(run_dir))
 
 
 class _ExplodingEnv:
@@ -79,8 +78,8 @@ def test_a_second_writer_is_refused_and_nothing_is_written(tmp_path, capsys):
 def test_diverged_training_stops_with_3_and_resumes_with_other_settings(tmp_path, capsys):
     """alpha 1e38 overflows the penalty: exit 3 naming it, checkpoint 300 kept, nothing of the
     bad chunk written; resuming with a sane alpha (a data field: same program) goes on."""
-    out = str(tmp_path / "run")
-    assert _cli([*SMOKE, "--steps", "300", "--out", out], capsys)[0] == 0
+    out = str(tmp_path / "run")  # alpha > 0 throughout: one program (MA on), compiled once
+    assert _cli([*SMOKE, "--steps", "300", "--alpha", "1", "--out", out], capsys)[0] == 0
     before = _records(out)
     status, io = _cli(["train", "--out", out, "--resume", "--steps", "600", "--alpha", "1e38"],
                       capsys)  # fmt: skip

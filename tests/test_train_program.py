@@ -79,8 +79,7 @@ def test_smoke_numbers_are_kept(name, tmp_path, capsys):
     out = str(tmp_path / "run")
     assert main([*reference["argv"], "--out", out]) == 0
     capsys.readouterr()
-    records = [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS}
-               for r in runner.read_metrics(out)]  # fmt: skip
+    records = runner.without_timings(runner.read_metrics(out))
     assert records == reference["current"]["records"]
     for now, before in zip(records, reference["records"], strict=True):
         assert set(now) >= set(before)

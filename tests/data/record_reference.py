@@ -30,8 +30,7 @@ def main() -> None:
     reference = json.loads(path.read_text())
     with tempfile.TemporaryDirectory() as tmp:
         assert cli([*reference["argv"], "--out", f"{tmp}/run"]) == 0
-        records = [{k: v for k, v in r.items() if k not in runner.TIMING_KEYS}
-                   for r in runner.read_metrics(f"{tmp}/run")]  # fmt: skip
+        records = runner.without_timings(runner.read_metrics(f"{tmp}/run"))
     if args.check_unchanged:
         for new, old in zip(records, reference["current"]["records"], strict=True):
             changed = {k: (old[k], new.get(k)) for k in old if new.get(k) != old[k]}

@@ -1,0 +1,105 @@
+"""Kill a training run at random moments, resume it, and tally how often the metrics come out exact.
+
+    python benchmarks/fault_injection.py [--algo sac] [--kills 10] [--steps 1500] [--seed 0]
+
+One uninterrupted smoke run is the reference. Then, ``--kills`` times: the same run starts in a
+fresh directory, receives SIGKILL after a uniformly random delay (up to the reference's wall
+time, so the kill lands in start-up, compilation, a chunk, an evaluation or a checkpoint save),
+and is resumed with ``--resume`` (again and again until it finishes). Its ``metrics.jsonl``
+(timings dropped) must equal the reference's. Writes
+``benchmarks/results/fault_injection_<algo>.json`` and prints the tally.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from minatt_jax import checkpoint, runner
+
+RESULTS = os.path.join(os.path.dirname(__file__), "results")
+
+
+def _records(run_dir: str) -> list[dict]:
+    return runner.without_timings(runner.read_metrics(run_dir))
+
+
+def _train(argv: list[str], env: dict) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "minatt_jax.cli", *argv]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--algo", default="sac", choices=("sac", "mbpo", "mbmpo"))
+    parser.add_argument("--kills", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the kill times")
+    args = parser.parse_args()
+    rng = random.Random(args.seed)
+    work = tempfile.mkdtemp(prefix="minatt-fault-")
+    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": os.path.join(work, "xla-cache")}
+    base = ["train", "--preset", "smoke", "--algo", args.algo, "--steps", str(args.steps)]
+    reference_dir = os.path.join(work, "reference")
+    start = time.perf_counter()
+    proc = _train([*base, "--out", reference_dir], env)
+    _, err = proc.communicate()
+    if proc.returncode != 0:
+        raise SystemExit(f"reference run failed: {err.strip().splitlines()[-1]}")
+    wall = time.perf_counter() - start
+    reference = _records(reference_dir)
+    print(f"reference: {len(reference)} records in {wall:.0f} s ({args.algo})", flush=True)
+    trials = []
+    for i in range(args.kills):
+        run_dir = os.path.join(work, f"kill{i}")
+        delay = rng.uniform(0.0, wall)
+        proc = _train([*base, "--out", run_dir], env)
+        time.sleep(delay)
+        finished_first = proc.poll() is not None
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        at_kill = checkpoint.latest_step(run_dir) if os.path.isdir(run_dir) else None
+        resumes = 0
+        while True:
+            resumes += 1
+            fresh = not os.path.exists(os.path.join(run_dir, "config.json"))
+            argv = [*base, "--out", run_dir] + ([] if fresh else ["--resume"])
+            proc = _train(argv, env)
+            _, err = proc.communicate()
+            if proc.returncode == 0 or resumes >= 3:
+                break
+        exact = proc.returncode == 0 and _records(run_dir) == reference
+        trials.append({"kill_after_s": round(delay, 2), "checkpoint_at_kill": at_kill,
+                       "finished_before_kill": finished_first, "resumes": resumes,
+                       "exit_status": proc.returncode, "exact": exact,
+                       "error": "" if proc.returncode == 0 else err.strip()[-300:]})  # fmt: skip
+        print(f"kill {i + 1}/{args.kills} after {delay:5.1f} s (checkpoint {at_kill}): "
+              f"{'exact' if exact else 'DIFFERENT'}", flush=True)  # fmt: skip
+        shutil.rmtree(run_dir, ignore_errors=True)
+    tally = {
+        "algo": args.algo,
+        "steps": args.steps,
+        "reference_wall_s": round(wall, 1),
+        "kills": args.kills,
+        "exact": sum(t["exact"] for t in trials),
+        "trials": trials,
+        "command": f"python benchmarks/fault_injection.py --algo {args.algo} --kills "
+        f"{args.kills} --steps {args.steps} --seed {args.seed}",
+    }
+    os.makedirs(RESULTS, exist_ok=True)
+    runner.write_json_atomic(os.path.join(RESULTS, f"fault_injection_{args.algo}.json"), tally)
+    shutil.rmtree(work, ignore_errors=True)
+    print(json.dumps({k: v for k, v in tally.items() if k != "trials"}))
+
+
+if __name__ == "__main__":
+    main()
