@@ -184,9 +184,13 @@ def describe(run_dir: str, step: int | None = None) -> dict[str, Any]:
 
 
 def _step(run_dir: str, step: int | None) -> int:
-    step = latest_step(run_dir) if step is None else step
     if step is None:
-        raise CheckpointError(f"no checkpoint in {run_dir}")
+        step = latest_step(run_dir)
+        if step is None:
+            raise CheckpointError(f"no checkpoint in {run_dir}")
+    elif step not in (steps := all_steps(run_dir)):
+        have = ", ".join(map(str, steps)) or "none"
+        raise CheckpointError(f"no checkpoint {step} in {run_dir} (it has: {have})")
     return step
 
 

@@ -79,6 +79,8 @@ def read_metrics(run_dir: str) -> list[dict[str, Any]]:
 def load_config(run_dir: str) -> TrainConfig:
     """The (resolved) configuration a run directory was made with."""
     path = os.path.join(run_dir, "config.json")
+    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+        raise RunError(f"{run_dir} is a file, not a run directory")
     if not os.path.isdir(run_dir):
         raise RunError(f"run directory {run_dir} does not exist")
     if not os.path.exists(path):
