@@ -586,31 +586,26 @@ def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
     return metadata
 
 
-def _make_out_dir(path: str) -> None:
-    """Creates an output directory before any long work, or says in one line why not."""
+def _make_out_dir(path: str, file: str | None = None) -> None:
+    """Creates an output directory (``--out``, or the folder of the output ``file``) before any
+    long work, or says in one line why it cannot be."""
+    subject, cannot = (path, f"cannot write {file}: ") if file else (f"--out {path}", "cannot ")
     if os.path.exists(path) and not os.path.isdir(path):
-        raise UserError(f"--out {path} is a file, not a directory")
+        raise UserError(f"{cannot if file else ''}{subject} is a file, not a directory")
     try:
         os.makedirs(path, exist_ok=True)
     except OSError as e:
-        raise UserError(f"cannot create --out {path}: {e.strerror or e}") from None
+        reason = e.strerror or e
+        raise UserError(f"{cannot}{'' if file else 'create '}{subject}: {reason}") from None
     if not os.access(path, os.W_OK):
-        raise UserError(f"cannot write into --out {path}: not writable")
+        raise UserError(f"{cannot}{'' if file else 'write into '}{subject}: not writable")
 
 
 def _check_out_file(path: str) -> None:
     """Checks, before any long work, that ``path`` can be written as a file."""
     if os.path.isdir(path):
         raise UserError(f"--out {path} is a directory; give the file to write")
-    parent = os.path.dirname(os.path.abspath(path))
-    if os.path.exists(parent) and not os.path.isdir(parent):
-        raise UserError(f"cannot write {path}: {parent} is not a directory")
-    try:
-        os.makedirs(parent, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"cannot write {path}: {e.strerror or e}") from None
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"cannot write {path}: {parent} is not writable")
+    _make_out_dir(os.path.dirname(os.path.abspath(path)), file=path)
 
 
 def _write_json_atomic(path: str, obj: Any) -> None:
