@@ -10,9 +10,13 @@ tuned default measured in ``benchmarks/env_throughput.py``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib.util
 import os
+import sys
+import tempfile
+from collections.abc import Iterator
 
 import mujoco
 
@@ -74,10 +78,37 @@ def asset_path(asset_file: str) -> str:
     return path
 
 
+# MuJoCo 4 warns, on the C-level stderr, that Gym's humanoid.xml uses the deprecated attribute
+# ``settotalmass``; the model compiles as before, so the warning is only noise in every command.
+_KNOWN_COMPILER_WARNINGS = ("compiler attribute 'settotalmass' is deprecated",)
+
+
+@contextlib.contextmanager
+def known_warnings_dropped() -> Iterator[None]:
+    """Captures file descriptor 2 while a model compiles and passes on every line but the known
+    compiler warnings above."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            lines = captured.read().decode(errors="replace").splitlines()
+            kept = [line for line in lines if line.strip()
+                    and not any(w in line for w in _KNOWN_COMPILER_WARNINGS)]  # fmt: skip
+            if kept:
+                sys.stderr.write("\n".join(kept) + "\n")
+
+
 def load_model(asset_file: str, options: PhysicsOptions) -> mujoco.MjModel:
     """The Gym MJCF model ``asset_file`` (an environment's ``asset_file``) with ``options``
     applied (a MuJoCo C model)."""
-    model = mujoco.MjModel.from_xml_path(asset_path(asset_file))
+    with known_warnings_dropped():
+        model = mujoco.MjModel.from_xml_path(asset_path(asset_file))
     if model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
         # MJX implements only CG and Newton; Newton is MuJoCo's default.
         model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON

@@ -27,6 +27,7 @@ import numpy as np
 
 import minatt_jax.envs as envs
 from minatt_jax import acting
+from minatt_jax.envs import mjcf
 from minatt_jax.evaluation import EvalResult, summarize
 
 GYMNASIUM_IDS: dict[str, str] = {
@@ -71,7 +72,8 @@ def make_gym_env(env_name: str, max_episode_steps: int, task: envs.Task | None =
             f'need the package {e.name!r}: pip install "minatt-jax[{EXTRA}]"'
         ) from None
     kwargs = _HUMANOID_OBS_45 if env_name == "humanoid" else {}
-    env = gymnasium.make(GYMNASIUM_IDS[env_name], max_episode_steps=max_episode_steps, **kwargs)
+    with mjcf.known_warnings_dropped():
+        env = gymnasium.make(GYMNASIUM_IDS[env_name], max_episode_steps=max_episode_steps, **kwargs)
     if task is not None:
         envs.apply_task_to_mj_model(env.unwrapped.model, task)
     return env
