@@ -34,3 +34,14 @@ def make_env():
         return cache[name]
 
     return get
+
+
+def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object]:
+    """The CLI's exit status (returned, or raised by argparse) and what it printed."""
+    from minatt_jax.cli import main
+
+    try:
+        status = main(argv)
+    except SystemExit as e:
+        status = e.code
+    return status, capsys.readouterr()

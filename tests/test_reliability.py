@@ -15,19 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from brax.envs.base import State
+from conftest import run_cli
 
 from minatt_jax import acting, checkpoint, run_guard, runner
-from minatt_jax.cli import main
 
 SMOKE = ["train", "--preset", "smoke"]
-
-
-def _cli(argv, capsys):
-    try:
-        status = main(argv)
-    except SystemExit as e:
-        status = e.code
-    return status, capsys.readouterr()
 
 
 def _records(run_dir):
@@ -68,7 +60,7 @@ def test_a_non_finite_simulator_state_is_reset_and_not_learned_from():
 def test_a_second_writer_is_refused_and_nothing_is_written(tmp_path, capsys):
     out = str(tmp_path / "run")
     with run_guard.lock_run(out):
-        status, io = _cli([*SMOKE, "--steps", "300", "--out", out], capsys)
+        status, io = run_cli([*SMOKE, "--steps", "300", "--out", out], capsys)
     assert status == 2 and "being trained by another process" in io.err
     assert len(io.err.strip().splitlines()) == 1
     assert not os.path.exists(os.path.join(out, "config.json"))
@@ -79,16 +71,16 @@ def test_diverged_training_stops_with_3_and_resumes_with_other_settings(tmp_path
     """alpha 1e38 overflows the penalty: exit 3 naming it, checkpoint 300 kept, nothing of the
     bad chunk written; resuming with a sane alpha (a data field: same program) goes on."""
     out = str(tmp_path / "run")  # alpha > 0 throughout: one program (MA on), compiled once
-    assert _cli([*SMOKE, "--steps", "300", "--alpha", "1", "--out", out], capsys)[0] == 0
+    assert run_cli([*SMOKE, "--steps", "300", "--alpha", "1", "--out", out], capsys)[0] == 0
     before = _records(out)
-    status, io = _cli(["train", "--out", out, "--resume", "--steps", "600", "--alpha", "1e38"],
+    status, io = run_cli(["train", "--out", out, "--resume", "--steps", "600", "--alpha", "1e38"],
                       capsys)  # fmt: skip
     assert status == 3, io.err
     assert "non-finite at step 600" in io.err and "ma_penalty" in io.err
     assert "checkpoint 300 is kept" in io.err and "--resume" in io.err
     assert checkpoint.all_steps(out) == [300] and _records(out) == before
     assert runner.load_config(out).ma.alpha == 1e38  # the resume itself was valid
-    status, io = _cli(["train", "--out", out, "--resume", "--alpha", "0.5"], capsys)
+    status, io = run_cli(["train", "--out", out, "--resume", "--alpha", "0.5"], capsys)
     assert status == 0, io.err
     assert "resuming with ma.alpha=0.5" in io.out
     assert [r["step"] for r in _records(out)] == [300, 600]
@@ -96,7 +88,7 @@ def test_diverged_training_stops_with_3_and_resumes_with_other_settings(tmp_path
     policy = checkpoint.load_policy(out)
     broken = jax.tree.map(lambda x: x * np.nan, policy.actor_params)
     checkpoint.save_policy_snapshot(out, 600, broken, policy.normalizer)
-    status, io = _cli(["evaluate", out], capsys)
+    status, io = run_cli(["evaluate", out], capsys)
     assert status == 2 and "non-finite weights" in io.err
 
 
@@ -105,7 +97,7 @@ def test_resume_falls_back_past_an_unreadable_checkpoint(tmp_path, capsys):
     """Checkpoint 600 corrupt, the snapshot of 300 lost, metrics.jsonl cut mid-line: resume goes
     on from 300, says so, rewrites the snapshot and the records exactly."""
     out = str(tmp_path / "run")
-    assert _cli([*SMOKE, "--steps", "600", "--out", out], capsys)[0] == 0
+    assert run_cli([*SMOKE, "--steps", "600", "--out", out], capsys)[0] == 0
     before = _records(out)
     for root, _, files in os.walk(os.path.join(out, "checkpoints", "600")):
         for name in files:
@@ -114,7 +106,7 @@ def test_resume_falls_back_past_an_unreadable_checkpoint(tmp_path, capsys):
     os.remove(os.path.join(out, "policy_snapshots", "step_000000300.npz"))
     with open(os.path.join(out, "metrics.jsonl"), "a") as f:
         f.write('{"step": 9')
-    status, io = _cli(["train", "--out", out, "--resume"], capsys)
+    status, io = run_cli(["train", "--out", out, "--resume"], capsys)
     assert status == 0, io.err
     assert "checkpoint 600 is unreadable; resuming from checkpoint 300" in io.out
     assert _records(out) == before  # step 600 trained again, identically

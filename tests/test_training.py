@@ -14,9 +14,9 @@ import time
 import jax
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from minatt_jax import acting, checkpoint, runner
-from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import summarize
 from minatt_jax.training import make_train
@@ -93,24 +93,16 @@ def test_killed_run_resumes_exactly(tmp_path):
     assert runner.without_timings(a) == runner.without_timings(b)
 
 
-def _run_cli(argv, capsys):
-    try:
-        status = main(argv)
-    except SystemExit as e:
-        status = e.code
-    return status, capsys.readouterr()
-
-
 def test_resume_errors_exit_2(tmp_path, capsys):
-    status, out = _run_cli(["train", "--resume", "--out", str(tmp_path / "none")], capsys)
+    status, out = run_cli(["train", "--resume", "--out", str(tmp_path / "none")], capsys)
     assert status == 2 and "does not exist" in out.err
     run = tmp_path / "run"
     run.mkdir()
     runner.write_json_atomic(str(run / "config.json"), SMALL.to_dict())
-    status, out = _run_cli(["train", "--resume", "--out", str(run), "--env", "walker2d"], capsys)
+    status, out = run_cli(["train", "--resume", "--out", str(run), "--env", "walker2d"], capsys)
     assert status == 2 and "other settings" in out.err
     (run / "config.json").write_text("{not json")
-    status, out = _run_cli(["evaluate", str(run)], capsys)
+    status, out = run_cli(["evaluate", str(run)], capsys)
     assert status == 2 and "corrupt" in out.err
     assert len(out.err.strip().splitlines()) == 1
 
@@ -123,7 +115,7 @@ def test_train_rejects_bad_values(capsys):
         (["train", "--variant", "moon"], "unknown variant"),
         (["train", "--estimator", "magic"], "invalid choice"),
     ]:
-        status, out = _run_cli(argv, capsys)
+        status, out = run_cli(argv, capsys)
         assert status == 2, argv
         assert message in out.err
         assert len(out.err.strip().splitlines()) == 1
@@ -141,14 +133,14 @@ def test_corrupt_checkpoint_is_reported(tmp_path, capsys):
             with open(os.path.join(root, name), "wb") as f:
                 f.write(b"garbage")
     for argv in (["meta-test", run, "--variant", "mass"], ["inspect", run]):
-        status, out = _run_cli(argv, capsys)
+        status, out = run_cli(argv, capsys)
         assert status == 2, argv
         assert "corrupt" in out.err and len(out.err.strip().splitlines()) == 1
     # evaluate reads the step's policy snapshot, which is intact.
-    status, out = _run_cli(["evaluate", run, "--json"], capsys)
+    status, out = run_cli(["evaluate", run, "--json"], capsys)
     assert status == 0 and json.loads(out.out)["step"] == 300
     shutil.rmtree(os.path.join(run, "checkpoints"))
     shutil.rmtree(os.path.join(run, "policy_snapshots"))
-    status, out = _run_cli(["evaluate", run, "--json"], capsys)
+    status, out = run_cli(["evaluate", run, "--json"], capsys)
     assert status == 2 and "no checkpoint" in out.err
     assert json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[0])["step"]
