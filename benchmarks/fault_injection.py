@@ -45,6 +45,9 @@ def main() -> None:
     parser.add_argument("--kills", type=int, default=10)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--seed", type=int, default=0, help="seed of the kill times")
+    parser.add_argument("--earliest", type=float, default=0.0,
+                        help="kill no earlier than this (seconds), e.g. past start-up")  # fmt: skip
+    parser.add_argument("--tag", default="", help="suffix of the result file's name")
     args = parser.parse_args()
     rng = random.Random(args.seed)
     work = tempfile.mkdtemp(prefix="minatt-fault-")
@@ -69,7 +72,7 @@ def main() -> None:
     trials = []
     for i in range(args.kills):
         run_dir = os.path.join(work, f"kill{i}")
-        delay = rng.uniform(0.0, wall)
+        delay = rng.uniform(min(args.earliest, wall), wall)
         proc = _train([*base, "--out", run_dir], env)
         time.sleep(delay)
         finished_first = proc.poll() is not None
@@ -99,13 +102,16 @@ def main() -> None:
         "reference_wall_s": round(compile_wall, 1),
         "cached_run_wall_s": round(wall, 1),
         "kills": args.kills,
+        "earliest_s": args.earliest,
         "exact": sum(t["exact"] for t in trials),
         "trials": trials,
         "command": f"python benchmarks/fault_injection.py --algo {args.algo} --kills "
-        f"{args.kills} --steps {args.steps} --seed {args.seed}",
+        f"{args.kills} --steps {args.steps} --seed {args.seed} --earliest {args.earliest}"
+        + (f" --tag {args.tag}" if args.tag else ""),
     }
     os.makedirs(RESULTS, exist_ok=True)
-    runner.write_json_atomic(os.path.join(RESULTS, f"fault_injection_{args.algo}.json"), tally)
+    name = f"fault_injection_{args.algo}{'_' + args.tag if args.tag else ''}.json"
+    runner.write_json_atomic(os.path.join(RESULTS, name), tally)
     shutil.rmtree(work, ignore_errors=True)
     print(json.dumps({k: v for k, v in tally.items() if k != "trials"}))
 
