@@ -19,7 +19,6 @@ are taken from the template on restore.
 
 from __future__ import annotations
 
-import io
 import logging
 import os
 from typing import Any, NamedTuple
@@ -296,9 +295,7 @@ def save_policy_snapshot(run_dir: str, step: int, actor_params: Any, normalizer:
         "format": np.asarray(FORMAT),
     }
     path = _snapshot_path(run_dir, step)
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    run_files.write_bytes_atomic(path, buffer.getvalue())
+    run_files.write_npz_atomic(path, arrays)
     return path
 
 

@@ -618,32 +618,6 @@ def _write_json_atomic(path: str, obj: Any) -> None:
         raise UserError(f"cannot write {path}: {e.strerror or e}") from None
 
 
-class _TerminatedError(Exception):
-    """SIGTERM outside training's own handler."""
-
-
-class _TerminateAsException:
-    """Turns SIGTERM into ``_TerminatedError`` (as Python does SIGINT into KeyboardInterrupt), so a
-    command stopped before or after training exits with one line and 143, not silently."""
-
-    def _raise(self, signum: int, frame: Any) -> None:
-        raise _TerminatedError
-
-    def __enter__(self) -> None:
-        import signal
-        import threading
-
-        self.previous = None
-        if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGTERM, self._raise)
-
-    def __exit__(self, *exc: Any) -> None:
-        import signal
-
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``minatt-jax`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
@@ -657,9 +631,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "inspect": _cmd_inspect,
         "export": _cmd_export,
     }
-    terminate = _TerminateAsException()
+    from minatt_jax import run_guard
+
     try:
-        with terminate:
+        with run_guard.sigterm_raises():
             commands[args.command](args)
     except UserError as e:
         label = "error" if e.exit_status == EXIT_USER_ERROR else "stopped"
@@ -668,7 +643,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C outside training's own handler (start-up, evaluation)
         sys.stderr.write("minatt-jax: interrupted\n")
         return 130
-    except _TerminatedError:
+    except run_guard.TerminatedError:
         sys.stderr.write("minatt-jax: terminated\n")
         return 143
     except BrokenPipeError:  # output piped into a reader that stopped (``| head``): not an error

@@ -6,7 +6,6 @@ module writes it from a run directory (``minatt-jax export RUN_DIR --out policy.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import re
@@ -57,7 +56,5 @@ def export_policy(run_dir: str, out: str, step: int | None = None) -> dict[str, 
     }
     for i, (kernel, bias) in enumerate(_actor_layers(policy.actor_params)):
         arrays[f"layer_{i}/kernel"], arrays[f"layer_{i}/bias"] = kernel, bias
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    run_files.write_bytes_atomic(out, buffer.getvalue())
+    run_files.write_npz_atomic(out, arrays)
     return metadata

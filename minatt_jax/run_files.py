@@ -6,10 +6,13 @@ second process never leaves half a file.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import tempfile
 from typing import Any
+
+import numpy as np
 
 from minatt_jax.config import TrainConfig, resolve
 
@@ -51,6 +54,13 @@ def write_bytes_atomic(path: str, data: bytes) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def write_npz_atomic(path: str, arrays: dict[str, Any]) -> None:
+    """Writes arrays as an ``.npz`` atomically (see ``write_bytes_atomic``)."""
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    write_bytes_atomic(path, buffer.getvalue())
 
 
 def write_text_atomic(path: str, text: str) -> None:

@@ -16,7 +16,8 @@ import fcntl
 import os
 import signal
 import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from types import FrameType
 
 
@@ -47,6 +48,38 @@ def lock_run(run_dir: str) -> Iterator[None]:
 
 
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+def _install(handler: Callable, signums: tuple[int, ...]) -> dict[int, object]:
+    """Installs ``handler`` for ``signums`` (only the main thread can); returns the previous
+    handlers, empty where nothing was installed."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {signum: signal.signal(signum, handler) for signum in signums}
+
+
+def _restore(previous: dict[int, object]) -> None:
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
+
+
+class TerminatedError(Exception):
+    """SIGTERM arrived outside training's own handler (see ``sigterm_raises``)."""
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """SIGTERM raises TerminatedError, as Python makes SIGINT raise KeyboardInterrupt, so a
+    command stopped outside training exits with one line and 143 instead of silently."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        raise TerminatedError
+
+    previous = _install(handler, (signal.SIGTERM,))
+    try:
+        yield
+    finally:
+        _restore(previous)
 
 
 class StopSignals:
@@ -81,13 +114,8 @@ class StopSignals:
         sys.stderr.flush()
 
     def __enter__(self) -> StopSignals:
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for signum in EXIT_STATUS:
-                self._previous[signum] = signal.signal(signum, self._handle)
+        self._previous = _install(self._handle, tuple(EXIT_STATUS))
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
+        _restore(self._previous)

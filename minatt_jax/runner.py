@@ -221,7 +221,7 @@ def _train(
                            "steps to resume it")  # fmt: skip
         changed = _changed_data(stored, config)
         if changed:
-            state = with_data(state, {**data_values(config)})
+            state = with_data(state, data_values(config))
             log(
                 f"resuming with {', '.join(f'{k}={v:g}' for k, v in changed.items())} "
                 f"(was {', '.join(f'{k}={config_field(stored, k):g}' for k in changed)})"
