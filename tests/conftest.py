@@ -45,3 +45,37 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object
     except SystemExit as e:
         status = e.code
     return status, capsys.readouterr()
+
+
+# Seconds each test module took on two CI-like cores (pytest --durations, 2026-11), after the
+# extended tests were set aside. Modules run longest first, so that the two pytest-xdist workers
+# finish together instead of one idling while the other runs a late long module. Unlisted
+# modules count as quick. A stale figure only costs balance, never correctness.
+MODULE_SECONDS = {
+    "test_population.py": 370,
+    "test_meta_test.py": 350,
+    "test_reliability.py": 300,
+    "test_train_program.py": 290,
+    "test_model_based.py": 200,
+    "test_training.py": 195,
+    "test_meta_step.py": 190,
+    "test_notebooks.py": 160,
+    "test_env_physics.py": 150,
+    "test_tasks.py": 140,
+    "test_checkpoint.py": 140,
+    "test_report.py": 135,
+    "test_mujoco_engine.py": 100,
+    "test_cli.py": 80,
+    "test_imagination.py": 70,
+    "test_bad_input.py": 60,
+    "test_control_analysis.py": 60,
+}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order set below
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: -MODULE_SECONDS.get(item.path.name, 0))  # stable within a module

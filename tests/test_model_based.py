@@ -18,7 +18,9 @@ from minatt_jax.config import PRESETS, resolve, with_overrides
 from minatt_jax.training import make_train
 
 
-@pytest.mark.parametrize("algo", ["mbpo", "mbmpo", "mbmpo-vpg-trpo"])
+@pytest.mark.parametrize(
+    "algo", ["mbpo", "mbmpo", pytest.param("mbmpo-vpg-trpo", marks=pytest.mark.extended)]
+)
 def test_model_based_chunk_compiles_once(algo):
     inner, outer = ("vpg", "trpo") if algo.endswith("trpo") else ("sac", "sac")
     algo = algo.split("-")[0]

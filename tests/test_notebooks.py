@@ -13,6 +13,10 @@ import pytest
 
 NOTEBOOKS = pathlib.Path(__file__).parent.parent / "notebooks"
 SOURCES = sorted(p.name for p in NOTEBOOKS.glob("[0-9][0-9]_*.py"))
+# CI runs the first two (training, the regularizer on any policy); the others train the same
+# programs at more length (meta-RL, a report, a population) and are extended tests.
+IN_CI = ("01_quickstart.py", "02_min_attention_any_policy.py")
+RUNS = [n if n in IN_CI else pytest.param(n, marks=pytest.mark.extended) for n in SOURCES]
 
 
 def _pair_module():
@@ -34,7 +38,7 @@ def test_every_notebook_is_paired_without_outputs_and_has_its_setup_cells():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SOURCES)
+@pytest.mark.parametrize("name", RUNS)
 def test_notebook_runs_in_smoke_mode(name, tmp_path):
     env = {**os.environ, "MINATT_SMOKE": "1", "MINATT_OUT": str(tmp_path / "runs"),
            "MPLBACKEND": "Agg"}  # fmt: skip

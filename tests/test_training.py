@@ -40,6 +40,7 @@ def _train(config):
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # 4 minutes; test_smoke_numbers_are_kept pins a training run's numbers in CI
 def test_sac_learns_and_ma_lowers_feedback():
     trainer, state, plain = _train(LEARN)
     # One compiled program served every chunk, before and after warm-up.
