@@ -13,7 +13,11 @@ all members of a group share: it is passed unbatched, so every ``lax.cond`` of t
 a branch under ``vmap`` instead of a select that would run both sides for every member.
 
 Members are sharded over all local devices (``jax.sharding``, a mesh over the population axis)
-when there are several and their number divides the population.
+when there are several and their number divides the population. Over several processes or hosts
+(``jax.distributed``: ``minatt-jax train --distributed`` or ``--coordinator/--num-processes/
+--process-id``) each process trains a contiguous share of every group on its own devices
+(``share``): members never exchange anything, so no collective crosses hosts, and member ``i``
+lands on the same process and device slot as on one host with that many devices.
 
 Each member has its own run directory (config.json with its own values, metrics.jsonl,
 TensorBoard, checkpoints, policy snapshots), so ``evaluate``, ``meta-test`` and ``analyze`` read
@@ -124,6 +128,16 @@ def groups(members: list[TrainConfig]) -> list[list[int]]:
     for i, m in enumerate(members):
         order.setdefault(program_config(m), []).append(i)
     return list(order.values())
+
+
+def share(indices: list[int], process: int, processes: int) -> list[int]:
+    """Process ``process``'s contiguous block of a group's members (``np.array_split``)."""
+    return [int(i) for i in np.array_split(np.asarray(indices, int), processes)[process]]
+
+
+def this_process() -> tuple[int, int]:
+    """(index, count) of this process among the population's (``jax.distributed``; (0, 1))."""
+    return jax.process_index(), jax.process_count()
 
 
 def member_name(config: TrainConfig, swept: list[str]) -> str:
@@ -242,8 +256,11 @@ def train_population(
     swept: list[str],
     resume: bool = False,
     log: Callable[[str], None] = print,
+    process: tuple[int, int] | None = None,
 ) -> list[dict[str, Any]]:
-    """Trains (or resumes) every member, group by group; returns each member's last record."""
+    """Trains (or resumes) this process's share of every group (all members in one process),
+    group by group; returns each member's last record ({} for other processes' members)."""
+    rank, processes = process or this_process()
     names = [member_name(c, swept) for c in members]
     if len(set(names)) != len(names):
         raise RunError("two members would share a run directory; sweep distinct values")
@@ -256,33 +273,41 @@ def train_population(
         ],  # fmt: skip
         "swept": swept,
         "groups": groups(members),
+        "processes": processes,
     }
+    mine = [share(indices, rank, processes) for indices in index["groups"]]
     # Built first: a population that cannot fit is refused before anything is written.
-    programs = [Program([members[i] for i in indices]) for indices in index["groups"]]
+    programs = [Program([members[i] for i in own]) if own else None for own in mine]
+    own_members = [i for own in mine for i in own]
     if resume:
-        if not os.path.exists(index_path):
+        if rank == 0 and not os.path.exists(index_path):
             raise RunError(f"{out_dir} holds no population to resume (no population.json)")
-        for d, c in zip(dirs, members, strict=True):
-            if load_config(d).to_dict() != c.to_dict():
-                raise RunError(f"{d} was made with other settings; see its config.json")
+        for i in own_members:
+            if load_config(dirs[i]).to_dict() != members[i].to_dict():
+                raise RunError(f"{dirs[i]} was made with other settings; see its config.json")
     else:
-        if os.path.exists(index_path):
+        if rank == 0 and os.path.exists(index_path):
             raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
         try:
-            for d, c in zip(dirs, members, strict=True):
-                os.makedirs(d, exist_ok=True)
-                write_json_atomic(os.path.join(d, "config.json"), c.to_dict())
-            write_json_atomic(index_path, index)
+            for i in own_members:
+                os.makedirs(dirs[i], exist_ok=True)
+                write_json_atomic(os.path.join(dirs[i], "config.json"), members[i].to_dict())
+            if rank == 0:
+                write_json_atomic(index_path, index)
         except OSError as e:
             reason = e.strerror or e
             raise RunError(f"cannot write the population into {out_dir}: {reason}") from None
     last: list[dict[str, Any]] = [{} for _ in members]
+    lock = ".lock" if processes == 1 else f".lock-process{rank}"
     try:
-        with run_guard.lock_run(out_dir), run_guard.StopSignals() as stop:
-            for g, (indices, program) in enumerate(zip(index["groups"], programs, strict=True)):
+        with run_guard.lock_run(out_dir, lock), run_guard.StopSignals() as stop:
+            for g, (indices, program) in enumerate(zip(mine, programs, strict=True)):
+                if program is None:
+                    continue  # more processes than this group has members
                 group = program.members
                 mib = program.bytes_per_member / 2**20
-                log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members "
+                on = f" (process {rank + 1}/{processes})" if processes > 1 else ""
+                log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members{on} "
                     f"({group[0].algo}, {group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
                 records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
                 for i, r in zip(indices, records, strict=True):
@@ -380,6 +405,8 @@ __all__ = [
     "member_name",
     "parse_seeds",
     "program_config",
+    "share",
+    "this_process",
     "train_population",
     "with_data",
 ]

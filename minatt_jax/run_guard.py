@@ -26,10 +26,11 @@ class RunLockedError(Exception):
 
 
 @contextlib.contextmanager
-def lock_run(run_dir: str) -> Iterator[None]:
-    """Holds ``RUN_DIR/.lock`` exclusively; raises RunLockedError when another process has it."""
+def lock_run(run_dir: str, name: str = ".lock") -> Iterator[None]:
+    """Holds ``RUN_DIR/<name>`` exclusively; raises RunLockedError when another process has it.
+    (Each process of a multi-process population locks a name of its own.)"""
     os.makedirs(run_dir, exist_ok=True)
-    path = os.path.join(run_dir, ".lock")
+    path = os.path.join(run_dir, name)
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
         try:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import os
+import socket
 import subprocess
 import sys
 
@@ -107,7 +109,7 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
 
 
 @pytest.mark.slow
-def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
+def test_population_resume_is_exact_and_splits_over_devices_and_processes(tmp_path):
     base = ["train", "--preset", "smoke", "--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
     assert main([*base, "--out", straight]) == 0
@@ -137,6 +139,29 @@ def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
                 # up to 2.2e-3 relative at 600 steps). A wrong member-to-device mapping would
                 # differ by far more (other seeds and alphas: 10-100%).
                 assert ra[key] == pytest.approx(rb[key], rel=2e-2), (name, key)
+    # The same population over two processes (jax.distributed, one CPU device each): each
+    # trains the two members the forced two-device run put on its device, with the same
+    # numbers: both run two-member batches.
+    processes = str(tmp_path / "processes")
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    procs = [
+        subprocess.Popen([sys.executable, "-m", "minatt_jax.cli", *base, "--steps", "300",
+                          "--out", processes, "--coordinator", f"localhost:{port}",
+                          "--num-processes", "2", "--process-id", str(rank)],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for rank in (0, 1)
+    ]  # fmt: skip
+    outputs = [p.communicate(timeout=900)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outputs[0][-2000:] + outputs[1][-2000:]
+    assert "2 members (process 2/2)" in outputs[1]
+    with open(os.path.join(processes, "population.json")) as f:
+        assert json.load(f)["processes"] == 2
+    for name in names:
+        a = runner.without_timings(runner.read_metrics(os.path.join(sharded, name)))
+        b = runner.without_timings(runner.read_metrics(os.path.join(processes, name)))
+        assert a == b, name
 
 
 def test_a_population_that_cannot_fit_is_refused_before_compiling(monkeypatch, capsys, tmp_path):
