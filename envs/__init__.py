@@ -16,10 +16,11 @@ with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx  # noqa: F401
 
 from minatt_jax.envs.base import LocomotionEnv  # noqa: E402 - after the mjx note is silenced
+from minatt_jax.envs.cheetah_run import CheetahRun
 from minatt_jax.envs.halfcheetah import HalfCheetah
 from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid
-from minatt_jax.envs.mjcf import PHYSICS_PRESETS, PhysicsOptions
+from minatt_jax.envs.mjcf import PHYSICS_PRESETS, MissingModelError, PhysicsOptions
 from minatt_jax.envs.task_sets import (
     TASK_FIELDS,
     TASK_SET_NAMES,
@@ -46,12 +47,17 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
     "halfcheetah": HalfCheetah,
     "walker2d": Walker2d,
     "humanoid": Humanoid,
+    "cheetah_run": CheetahRun,
 }
 ENV_NAMES = tuple(ENVIRONMENTS)
 
 
 class UnknownNameError(ValueError):
     """An environment, task set or physics preset name that does not exist."""
+
+
+class UnavailableEnvError(UnknownNameError):
+    """An environment whose model file's package is not installed (the message names it)."""
 
 
 def make(name: str, physics: str | PhysicsOptions = "fast") -> LocomotionEnv:
@@ -62,7 +68,10 @@ def make(name: str, physics: str | PhysicsOptions = "fast") -> LocomotionEnv:
         raise UnknownNameError(
             f"unknown physics preset {physics!r}; choose from {', '.join(PHYSICS_PRESETS)}"
         )
-    return ENVIRONMENTS[name](physics)
+    try:
+        return ENVIRONMENTS[name](physics)
+    except MissingModelError as e:
+        raise UnavailableEnvError(f"environment {name!r}: {e}") from None
 
 
 def check_task_set_name(set_name: str) -> None:
@@ -79,6 +88,7 @@ __all__ = [
     "PHYSICS_PRESETS",
     "TASK_FIELDS",
     "TASK_SET_NAMES",
+    "CheetahRun",
     "HalfCheetah",
     "Hopper",
     "Humanoid",
@@ -86,6 +96,7 @@ __all__ = [
     "PhysicsOptions",
     "Task",
     "TaskSpecError",
+    "UnavailableEnvError",
     "UnknownNameError",
     "Walker2d",
     "apply_task",

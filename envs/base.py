@@ -59,6 +59,10 @@ class LocomotionEnv(Env, abc.ABC):
     weights: RewardWeights = RewardWeights(1.0, 0.0, 0.0)
     terminates: bool = True
     asset_file: str = ""
+    asset_package: str = "gymnasium"
+    # Physics steps with zero control after the reset noise, before the episode starts (the
+    # DeepMind Control Suite lets its bodies settle this way); 0 for Gym's environments.
+    settle_steps: int = 0
     # Observation index names for analysis (heatmaps); filled by subclasses.
     obs_names: tuple[str, ...] = ()
     projections: tuple[tuple[str, str], ...] = ()
@@ -74,7 +78,8 @@ class LocomotionEnv(Env, abc.ABC):
     def __init__(self, physics: str | mjcf.PhysicsOptions = "fast") -> None:
         options = mjcf.PHYSICS_PRESETS[physics] if isinstance(physics, str) else physics
         self.physics_options = options
-        self.mj_model: mujoco.MjModel = mjcf.load_model(self.asset_file, options)
+        model = mjcf.load_model(self.asset_file, options, self.asset_package)
+        self.mj_model: mujoco.MjModel = model
         self.mjx_model: mjx.Model = mjx.put_model(self.mj_model)
         self.nominal_fields = NominalModelFields.from_model(self.mjx_model)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
@@ -111,6 +116,10 @@ class LocomotionEnv(Env, abc.ABC):
         qpos, qvel = self.reset_noise(key_q, key_v)
         model = apply_task(self.mjx_model, self.nominal_fields, task)
         data = mjx.make_data(model).replace(qpos=qpos, qvel=qvel)
+        if self.settle_steps:
+            data, _ = jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None,
+                                   self.settle_steps)  # fmt: skip
+            data = data.replace(time=jnp.zeros_like(data.time))
         data = mjx.forward(model, data)
         zero = jnp.zeros((), jnp.float32)
         metrics = {k: zero for k in self.metric_names()}
@@ -139,7 +148,7 @@ class LocomotionEnv(Env, abc.ABC):
             "reward_ctrl": -self.weights.ctrl_cost * terms["ctrl"],
             "reward_healthy": self.weights.healthy * jnp.ones_like(terms["forward"]),
             "x_position": data.qpos[0],
-            "x_velocity": terms["forward"],
+            "x_velocity": terms.get("speed", terms["forward"]),
         }
         info = {**state.info, "steps": state.info["steps"] + 1}
         return state.replace(

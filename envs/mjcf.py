@@ -63,18 +63,29 @@ PHYSICS_PRESETS: dict[str, PhysicsOptions] = {
 }
 
 
-def asset_path(asset_file: str) -> str:
-    """Path of the Gym MJCF file ``asset_file`` inside the installed gymnasium package."""
-    spec = importlib.util.find_spec("gymnasium")
+# Where each package keeps its MJCF files, and how to get the package when it is missing.
+MODEL_PACKAGES = {
+    "gymnasium": (("envs", "mujoco", "assets"), "reinstall minatt-jax with its dependencies"),
+    "dm_control": (("suite",), "pip install 'minatt-jax[dmc]' (the DeepMind Control Suite)"),
+}
+
+
+class MissingModelError(RuntimeError):
+    """The package that ships an environment's MJCF file is not installed."""
+
+
+def asset_path(asset_file: str, package: str = "gymnasium") -> str:
+    """Path of the MJCF file ``asset_file`` inside the installed ``package`` (gymnasium's Gym
+    models, dm_control's suite models), found without importing the package."""
+    folders, remedy = MODEL_PACKAGES[package]
+    spec = importlib.util.find_spec(package)
     if spec is None or not spec.submodule_search_locations:
-        raise RuntimeError(
-            "the gymnasium package (which ships the Gym MuJoCo model files) is not installed; "
-            "reinstall minatt-jax with its dependencies"
-        )
+        raise MissingModelError(f"the {package} package (which ships the model file "
+                                f"{asset_file}) is not installed: {remedy}")  # fmt: skip
     root = list(spec.submodule_search_locations)[0]
-    path = os.path.join(root, "envs", "mujoco", "assets", asset_file)
+    path = os.path.join(root, *folders, asset_file)
     if not os.path.exists(path):
-        raise RuntimeError(f"model file missing from gymnasium: {path}")
+        raise MissingModelError(f"model file missing from {package}: {path}")
     return path
 
 
@@ -104,11 +115,13 @@ def known_warnings_dropped() -> Iterator[None]:
                 sys.stderr.write("\n".join(kept) + "\n")
 
 
-def load_model(asset_file: str, options: PhysicsOptions) -> mujoco.MjModel:
-    """The Gym MJCF model ``asset_file`` (an environment's ``asset_file``) with ``options``
-    applied (a MuJoCo C model)."""
+def load_model(
+    asset_file: str, options: PhysicsOptions, package: str = "gymnasium"
+) -> mujoco.MjModel:
+    """The MJCF model ``asset_file`` of ``package`` (an environment's ``asset_file`` and
+    ``asset_package``) with ``options`` applied (a MuJoCo C model)."""
     with known_warnings_dropped():
-        model = mujoco.MjModel.from_xml_path(asset_path(asset_file))
+        model = mujoco.MjModel.from_xml_path(asset_path(asset_file, package))
     if model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
         # MJX implements only CG and Newton; Newton is MuJoCo's default.
         model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
