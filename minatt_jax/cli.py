@@ -149,6 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p_train.add_argument("--sweep", action="append", default=[], metavar="KEY=V1,V2",
                          help="population: every value of a field (repeat for a grid)")  # fmt: skip
+    p_train.add_argument("--distributed", action="store_true",
+                         help="population over several processes or hosts (jax.distributed; the "
+                              "cluster is read from SLURM, Open MPI, ... variables)")  # fmt: skip
+    p_train.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                         help="population over processes started by hand: process 0's address "
+                              "(with --num-processes and --process-id)")  # fmt: skip
+    p_train.add_argument("--num-processes", type=_positive_int, default=None, metavar="P")
+    p_train.add_argument("--process-id", type=_non_negative_int, default=None, metavar="I")
 
     p_meta = sub.add_parser("meta-test", help="adapt a trained run to each task of a variant")
     p_meta.add_argument("run_dir")
@@ -220,7 +228,11 @@ def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
 
     table = {}
     for name in envs.ENV_NAMES:
-        env = envs.make(name)
+        try:
+            env = envs.make(name)
+        except envs.UnavailableEnvError as e:
+            table[name] = {"unavailable": str(e)}
+            continue
         table[name] = {
             "observation_size": env.observation_size,
             "action_size": env.action_size,
@@ -233,6 +245,9 @@ def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
     else:
         print(f"{'env':12s} {'obs':>4s} {'act':>4s} {'dt':>6s}  task sets (tasks)")
         for name, row in table.items():
+            if "unavailable" in row:
+                print(f"{name:12s} {row['unavailable']}")
+                continue
             sets = ", ".join(f"{s} ({len(t)})" for s, t in row["task_sets"].items())
             print(
                 f"{name:12s} {row['observation_size']:4d} {row['action_size']:4d} "
@@ -378,12 +393,41 @@ def _train_config(args: argparse.Namespace):
     return config
 
 
+_PROCESS_FLAGS = ("coordinator", "num_processes", "process_id")
+
+
+def _join_processes(args: argparse.Namespace) -> None:
+    """``jax.distributed.initialize`` for a population over several processes, before any
+    JAX computation: from ``--coordinator/--num-processes/--process-id`` or, with
+    ``--distributed``, from the cluster's environment."""
+    given = [f for f in _PROCESS_FLAGS if getattr(args, f) is not None]
+    if not given and not args.distributed:
+        return
+    if given and len(given) < 3:
+        raise UserError("--coordinator, --num-processes and --process-id go together")
+    if given and args.process_id >= args.num_processes:
+        raise UserError(f"--process-id {args.process_id} is not below --num-processes "
+                        f"{args.num_processes}")  # fmt: skip
+    import jax
+
+    kwargs = {f: getattr(args, f) for f in _PROCESS_FLAGS}
+    try:
+        jax.distributed.initialize(
+            coordinator_address=kwargs["coordinator"], num_processes=kwargs["num_processes"],
+            process_id=kwargs["process_id"], initialization_timeout=120,
+        )  # fmt: skip
+    except (RuntimeError, ValueError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise UserError(f"cannot join the other processes: {first}") from None
+
+
 def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
     """``train --seeds/--sweep``: every member in one program per group (``population``)."""
     from minatt_jax import population, runner
 
     if args.out is None:
         raise UserError("a population needs --out DIR (one run directory per member inside)")
+    _join_processes(args)
     index_path = os.path.join(args.out, "population.json")
     if args.resume:
         if args.seeds or args.sweep:
@@ -441,6 +485,9 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     population_dir = args.out and os.path.exists(os.path.join(args.out, "population.json"))
     if args.seeds or args.sweep or (args.resume and population_dir):
         return _cmd_train_population(args)
+    if args.distributed or any(getattr(args, f) is not None for f in _PROCESS_FLAGS):
+        raise UserError("--distributed and --coordinator split a population (--seeds/--sweep) "
+                        "over processes; a single run takes one")  # fmt: skip
     config = _train_config(args)
     out = args.out or os.path.join(
         "runs", f"{config.env}_{config.algo}_alpha{config.ma.alpha:g}_seed{config.seed}"

@@ -21,10 +21,11 @@ import math
 import typing
 from typing import Any
 
+from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dynamics_ensemble import ModelConfig
 from minatt_jax.min_attention import CAPSConfig, MAConfig
 
-ALGOS = ("sac", "mbpo", "mbmpo")
+ALGOS = ("sac", "mbpo", "mbmpo", "dreamer")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,6 +140,7 @@ class TrainConfig:
     caps: CAPSConfig = CAPSConfig()
     model: ModelConfig = ModelConfig()
     mb: MBConfig = MBConfig()
+    dreamer: DreamerConfig = DreamerConfig()
 
     def __post_init__(self) -> None:
         positive = ("total_steps", "num_envs", "buffer_size", "max_episode_steps", "eval_every",
@@ -159,7 +161,7 @@ class TrainConfig:
 
     @property
     def model_based(self) -> bool:
-        return self.algo != "sac"
+        return self.algo in ("mbpo", "mbmpo")
 
     @property
     def planned_steps(self) -> int:
@@ -228,6 +230,22 @@ PRESETS: dict[str, TrainConfig] = {
             max_epochs=3,
         ),
         updates_per_step=1,
+        # DreamerV3 at toy size: the program's structure, in seconds.
+        dreamer=DreamerConfig(
+            deter=32,
+            hidden=16,
+            stoch=4,
+            classes=4,
+            blocks=2,
+            units=32,
+            layers=2,
+            bins=41,
+            batch_size=4,
+            batch_length=16,
+            imag_length=5,
+            train_ratio=64.0,
+            warmup=10,
+        ),  # fmt: skip
         mb=MBConfig(
             epoch_length=100,
             model_train_every=100,
@@ -264,7 +282,7 @@ PRESETS: dict[str, TrainConfig] = {
 }
 
 
-GROUPS = ("sac", "ma", "caps", "model", "mb")
+GROUPS = ("sac", "ma", "caps", "model", "mb", "dreamer")
 FLOAT32_MAX = 3.4028234663852886e38  # training runs in float32: larger values become inf
 
 
@@ -369,7 +387,7 @@ def resolve(config: TrainConfig) -> TrainConfig:
     if config.task_set is None:
         values["task_set"] = "train" if algo == "mbmpo" else "nominal"
     if config.updates_per_step is None:
-        values["updates_per_step"] = 1 if algo == "sac" else 2
+        values["updates_per_step"] = 2 if config.model_based else 1  # dreamer: train_ratio
     if config.model.num_elites is None:
         values["model.num_elites"] = min(5, config.model.ensemble_size)
     if config.ma.temporal_dt is None:

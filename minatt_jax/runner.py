@@ -121,7 +121,7 @@ def write_step(run_dir: str, step: int, state: Any, record: dict, writer: Any) -
             if k != "step" and not isinstance(v, list) and np.isfinite(v):
                 writer.add_scalar(k, v, step)
         writer.flush()
-    checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params, state.data.normalizer)
+    checkpoint.save_policy_snapshot(run_dir, step, *state.policy_items())
     try:
         checkpoint.save(run_dir, step, state)
     except checkpoint.CheckpointError as e:
@@ -229,8 +229,7 @@ def _train(
         if stored.to_dict() != config.to_dict():  # only now: the resume is valid
             write_json_atomic(config_path, config.to_dict())
         if step and step not in checkpoint.snapshot_steps(run_dir):  # lost in a crash
-            checkpoint.save_policy_snapshot(run_dir, step, state.agent.actor_params,
-                                            state.data.normalizer)  # fmt: skip
+            checkpoint.save_policy_snapshot(run_dir, step, *state.policy_items())
         # Records after the checkpoint are written again, identically, by the rerun.
         keep_metrics_until(run_dir, step)
         log(f"resumed {run_dir} at env step {step}")
@@ -309,10 +308,7 @@ def stopped_error(
 
 def non_finite_state(state: Any) -> list[str]:
     """The agent's parameter groups that hold non-finite values (checked once per chunk)."""
-    agent = state.agent
-    groups = {"actor parameters": agent.actor_params, "critic parameters": agent.critic_params}
-    if state.model is not None:
-        groups["model parameters"] = state.model.params
+    groups = state.parameter_groups()
     finite = {name: jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
               for name, tree in groups.items()}  # fmt: skip
     return [name for name, ok in jax.device_get(finite).items() if not ok]

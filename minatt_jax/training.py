@@ -91,13 +91,44 @@ class TrainState:
     env_steps: jax.Array  # total env steps taken (all environments)
     imagined: jax.Array  # total imagined transitions stored
 
+    def parameter_groups(self) -> dict[str, Any]:
+        """The parameters checked for non-finite values after every chunk."""
+        groups = {"actor parameters": self.agent.actor_params,
+                  "critic parameters": self.agent.critic_params}  # fmt: skip
+        if self.model is not None:
+            groups["model parameters"] = self.model.params
+        return groups
+
+    def policy_items(self) -> tuple[Any, Any]:
+        """What a policy snapshot holds: the actor's parameters and the observation normalizer."""
+        return self.agent.actor_params, self.data.normalizer
+
+    def with_data(self, values: dict[str, jax.Array]) -> TrainState:
+        """This state with its data fields (MA weight, learning rates, inner step) set."""
+
+        def lr(opt_state: Any, value: jax.Array) -> Any:
+            hyper = dict(opt_state.hyperparams)
+            hyper["learning_rate"] = jnp.asarray(value, hyper["learning_rate"].dtype)
+            return opt_state._replace(hyperparams=hyper)
+
+        agent = self.agent.replace(
+            ma_alpha=values["ma.alpha"],
+            actor_opt=lr(self.agent.actor_opt, values["sac.actor_lr"]),
+            critic_opt=lr(self.agent.critic_opt, values["sac.critic_lr"]),
+            entropy_opt=lr(self.agent.entropy_opt, values["sac.entropy_lr"]),
+        )
+        meta = self.meta
+        if meta is not None:
+            meta = meta.replace(inner_lr=values["mb.meta_inner_lr"])
+        return self.replace(agent=agent, meta=meta)
+
 
 class Trainer(NamedTuple):
     """The pure functions of a training run, and what they were built from."""
 
     config: TrainConfig
     env: envs.LocomotionEnv
-    sac: SAC
+    sac: SAC | None  # None for dreamer (its learner is parts["agent"])
     task_set: envs.Task
     init: Callable[[jax.Array], TrainState]
     train_chunk: Callable[[TrainState], tuple[TrainState, dict]]
@@ -140,25 +171,9 @@ def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
     return {k: np.float32(config_field(config, k)) for k in DATA_FIELDS if k != "seed"}
 
 
-def with_data(state: TrainState, values: dict[str, jax.Array]) -> TrainState:
-    """A member's state with its data fields (MA weight, learning rates, inner step) set."""
-    agent = state.agent
-
-    def lr(opt_state: Any, value: jax.Array) -> Any:
-        hyper = dict(opt_state.hyperparams)
-        hyper["learning_rate"] = jnp.asarray(value, hyper["learning_rate"].dtype)
-        return opt_state._replace(hyperparams=hyper)
-
-    agent = agent.replace(
-        ma_alpha=values["ma.alpha"],
-        actor_opt=lr(agent.actor_opt, values["sac.actor_lr"]),
-        critic_opt=lr(agent.critic_opt, values["sac.critic_lr"]),
-        entropy_opt=lr(agent.entropy_opt, values["sac.entropy_lr"]),
-    )
-    meta = state.meta
-    if meta is not None:
-        meta = meta.replace(inner_lr=values["mb.meta_inner_lr"])
-    return state.replace(agent=agent, meta=meta)
+def with_data(state: Any, values: dict[str, jax.Array]) -> Any:
+    """A member's state with its data fields set (each algorithm's state knows where)."""
+    return state.with_data(values)
 
 
 def training_tasks(config: TrainConfig, env: envs.LocomotionEnv) -> envs.Task:
@@ -187,6 +202,10 @@ def make_train(config: TrainConfig) -> Trainer:
     """Builds the environment, agent, optional model and meta step, and the jitted stages."""
     if not config.is_resolved:
         raise ValueError("make_train needs a resolved configuration: call config.resolve first")
+    if config.algo == "dreamer":
+        from minatt_jax.dreamer.training import make_dreamer_train
+
+        return make_dreamer_train(config)
     env = envs.make(config.env, config.physics)
     task_set = training_tasks(config, env)
     obs_dim, act_dim = env.observation_size, env.action_size

@@ -111,7 +111,10 @@ def test_resume_errors_exit_2(tmp_path, capsys):
 def test_train_rejects_bad_values(capsys):
     for argv, message in [
         (["train", "--env", "ant"], "unknown environment"),
-        (["train", "--algo", "ppo"], "unknown algorithm 'ppo'; choose from sac, mbpo, mbmpo"),
+        (
+            ["train", "--algo", "ppo"],
+            "unknown algorithm 'ppo'; choose from sac, mbpo, mbmpo, dreamer",
+        ),
         (["train", "--alpha=-1"], "expected a finite number >= 0"),
         (["train", "--variant", "moon"], "unknown variant"),
         (["train", "--estimator", "magic"], "invalid choice"),

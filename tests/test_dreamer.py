@@ -1,0 +1,186 @@
+"""DreamerV3's parts: symlog and two-hot, KL balance, return normalization, lambda-returns,
+straight-through samples, and the MA Jacobians (trained and reported) by finite differences."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from minatt_jax.dreamer import distributions as dist
+from minatt_jax.dreamer.agent import Batch, Latent, make_agent
+from minatt_jax.dreamer.config import DreamerConfig
+from minatt_jax.dreamer.networks import feature
+from minatt_jax.min_attention import MAConfig
+
+TINY = DreamerConfig(deter=16, hidden=8, stoch=4, classes=3, blocks=2, units=16, layers=2,
+                     bins=31, batch_size=3, batch_length=5, imag_length=4)  # fmt: skip
+
+
+def test_symlog_twohot_round_trip():
+    y = jnp.asarray([-300.0, -2.5, -0.1, 0.0, 0.7, 12.0, 5000.0])
+    np.testing.assert_allclose(dist.symexp(dist.symlog(y)), y, rtol=1e-5)
+    np.testing.assert_allclose(dist.symlog(jnp.asarray([-1.0, 1.0])), [-np.log(2), np.log(2)])
+    # Its derivative 1 / (1 + |x|), at 0 too (where sign(x) jumps).
+    slopes = jax.vmap(jax.grad(dist.symlog))(jnp.asarray([-3.0, 0.0, 2.0]))
+    np.testing.assert_allclose(slopes, [0.25, 1.0, 1 / 3], rtol=1e-6)
+    bins = dist.twohot_bins(255)
+    target = dist.twohot(y, bins)
+    np.testing.assert_allclose(jnp.sum(target, -1), 1.0, rtol=1e-6)
+    assert int(jnp.max(jnp.sum(target > 0, -1))) <= 2  # two neighbouring bins at most
+    np.testing.assert_allclose(target @ bins, dist.symlog(y), atol=1e-5)  # mean in symlog space
+    # A head whose softmax is the two-hot target predicts y back; its loss is the target's
+    # entropy there and larger for any other prediction.
+    logits = jnp.log(target + 1e-30)
+    np.testing.assert_allclose(dist.twohot_mean(logits, bins), y, rtol=1e-4, atol=1e-5)
+    best = dist.twohot_loss(logits, y, bins)
+    worse = dist.twohot_loss(jnp.log(dist.twohot(y + 1.0, bins) + 1e-30), y, bins)
+    assert np.all(np.asarray(worse) > np.asarray(best))
+
+
+def test_straight_through_sample_has_the_probabilities_gradient():
+    logits = jnp.asarray([[0.3, -1.0, 2.0], [0.0, 0.5, -0.5]])
+    key = jax.random.PRNGKey(0)
+    weights = jnp.asarray([[1.0, 2.0, 3.0], [-1.0, 0.5, 4.0]])
+    f = lambda lg: jnp.sum(weights * dist.sample_onehot(key, dist.unimix_probs(lg, 0.01)))  # noqa: E731
+    g = lambda lg: jnp.sum(weights * dist.unimix_probs(lg, 0.01))  # noqa: E731
+    sample = dist.sample_onehot(key, dist.unimix_probs(logits, 0.01))
+    np.testing.assert_allclose(sample, jax.nn.one_hot(jnp.argmax(sample, -1), 3), atol=1e-6)
+    np.testing.assert_allclose(jax.grad(f)(logits), jax.grad(g)(logits), rtol=1e-6)
+    assert float(jnp.min(dist.unimix_probs(jnp.asarray([50.0, -50.0, -50.0]), 0.01))) >= 0.01 / 3
+
+
+def test_kl_balance_values_gradients_and_free_nats():
+    post = dist.unimix_probs(jnp.asarray([[[2.0, 0.0, -1.0], [0.0, 0.0, 3.0]]]), 0.01)
+    prior = dist.unimix_probs(jnp.asarray([[[0.0, 0.0, 0.0], [1.0, -1.0, 0.0]]]), 0.01)
+    p, q = np.asarray(post, np.float64), np.asarray(prior, np.float64)
+    kl = float(np.sum(p * (np.log(p) - np.log(q))))
+    dyn, rep = dist.kl_balance(post, prior, free_nats=0.0)
+    assert float(dyn[0]) == pytest.approx(kl, rel=1e-5) and float(rep[0]) == pytest.approx(
+        kl, rel=1e-5
+    )
+    # dyn trains only the prior, rep only the posterior.
+    d_post = jax.grad(lambda a: dist.kl_balance(a, prior, 0.0)[0].sum())(post)
+    d_prior = jax.grad(lambda b: dist.kl_balance(post, b, 0.0)[1].sum())(prior)
+    assert float(jnp.abs(d_post).max()) == 0.0 and float(jnp.abs(d_prior).max()) == 0.0
+    assert (
+        float(jnp.abs(jax.grad(lambda b: dist.kl_balance(post, b, 0.0)[0].sum())(prior)).max()) > 0
+    )
+    # Below the free nats both losses are constant: no gradient at all.
+    dyn, rep = dist.kl_balance(post, prior, free_nats=kl + 1.0)
+    assert float(dyn[0]) == float(rep[0]) == pytest.approx(kl + 1.0)
+    flat = jax.grad(lambda a: dist.kl_balance(a, prior, kl + 1.0)[1].sum())(post)
+    assert float(jnp.abs(flat).max()) == 0.0
+
+
+def test_return_normalization_tracks_percentiles_and_never_amplifies():
+    returns = jnp.linspace(0.0, 100.0, 1001)  # P5 = 5, P95 = 95
+    scale = dist.ReturnScale.create()
+    for _ in range(2000):
+        scale = dist.update_return_scale(scale, returns, rate=0.01)
+    assert float(scale.low) == pytest.approx(5.0, rel=1e-3)
+    assert float(scale.high) == pytest.approx(95.0, rel=1e-3)
+    assert float(dist.return_normalizer(scale)) == pytest.approx(90.0, rel=1e-3)
+    small = dist.ReturnScale.create()
+    for _ in range(2000):
+        small = dist.update_return_scale(small, 0.01 * returns, rate=0.01)
+    assert float(dist.return_normalizer(small)) == 1.0  # spread 0.9 < 1: divided by 1
+
+
+@pytest.fixture(scope="module")
+def agent():
+    return make_agent(5, 2, TINY, MAConfig(alpha=0.5))
+
+
+def test_lambda_returns_match_a_loop(agent):
+    rng = np.random.default_rng(0)
+    h = 6
+    reward, value = rng.normal(size=(h + 1, 3)), rng.normal(size=(h + 1, 3))
+    cont = (rng.uniform(size=(h + 1, 3)) > 0.2).astype(np.float64)
+    got = np.asarray(
+        agent.lambda_returns(jnp.asarray(reward), jnp.asarray(cont), jnp.asarray(value))
+    )
+    g, lam = TINY.gamma, TINY.lam
+    expect = np.zeros((h, 3))
+    nxt = value[h]
+    for t in reversed(range(h)):
+        nxt = reward[t + 1] + g * cont[t + 1] * ((1 - lam) * value[t + 1] + lam * nxt)
+        expect[t] = nxt
+    np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-6)
+
+
+def _central_jacobian(f, x, eps=1e-3):
+    x = np.asarray(x, np.float64)
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e.flat[i] = eps
+        up = np.asarray(f(jnp.asarray(x + e, jnp.float32)), np.float64)
+        down = np.asarray(f(jnp.asarray(x - e, jnp.float32)), np.float64)
+        cols.append((up - down) / (2 * eps))
+    return np.stack(cols, -1)
+
+
+def test_ma_jacobians_trained_and_reported_match_finite_differences(agent):
+    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    # Actor weights away from their small initialization, so the Jacobians are not tiny.
+    actor = jax.tree.map(lambda w: w + 0.3 * jax.random.normal(jax.random.PRNGKey(1), w.shape),
+                         state.params["actor"])  # fmt: skip
+    params = {**state.params, "actor": actor}
+    key = jax.random.PRNGKey(2)
+    latent = Latent(jax.random.normal(key, (TINY.deter,)),
+                    jax.nn.one_hot(jnp.asarray([0, 2, 1, 1]), TINY.classes))  # fmt: skip
+    feat = feature(latent.deter, latent.stoch)
+    # Trained: ||d tanh(mean) / d s||_F^2 at the model state s the actor reads.
+    from minatt_jax import min_attention as ma
+
+    trained = float(ma.feedback_exact(agent.control, actor, feat[None], "jacrev")[0])
+    fd = _central_jacobian(lambda s: agent.control(actor, s), feat)
+    assert trained == pytest.approx(float(np.sum(fd**2)), rel=2e-2)
+    # Reported: with respect to the observation, through the encoder and the posterior.
+    obs = jnp.asarray([0.3, -0.2, 1.5, 0.0, -0.7])
+    jac = jax.jacfwd(lambda o: agent.observation_control(params, latent, o))(obs)
+    fd_obs = _central_jacobian(lambda o: agent.observation_control(params, latent, o), obs)
+    np.testing.assert_allclose(jac, fd_obs, rtol=2e-2, atol=1e-4)
+    assert float(jnp.sum(jac**2)) > 1e-6
+
+
+def _batch(key, config, obs_size=5, act_size=2):
+    b, t = config.batch_size, config.batch_length
+    k1, k2, k3 = jax.random.split(key, 3)
+    return Batch(
+        obs=jax.random.normal(k1, (b, t, obs_size)),
+        prev_action=jax.random.uniform(k2, (b, t, act_size), minval=-1, maxval=1),
+        reward=jax.random.uniform(k3, (b, t)),
+        is_first=jnp.zeros((b, t)).at[:, 0].set(1.0),
+        cont=jnp.ones((b, t)),
+    )
+
+
+def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
+    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    batch = _batch(jax.random.PRNGKey(3), TINY)
+    update = jax.jit(agent.update)
+    # The learning rate warms up from 0: the first update moves nothing, the second does.
+    state, _ = update(state, batch, jax.random.PRNGKey(5))
+    new, metrics = update(state, batch, jax.random.PRNGKey(4))
+    for name in ("world_model", "actor", "critic"):
+        before, after = jax.tree.leaves(state.params[name]), jax.tree.leaves(new.params[name])
+        assert any(float(jnp.abs(a - b).max()) > 0 for a, b in zip(before, after, strict=True))
+    assert all(np.isfinite(float(v)) for v in metrics.values())
+    assert float(metrics["ma_feedback"]) > 0 and int(new.updates) == 2
+    # alpha is data: the same program with alpha 0 leaves the actor's gradient without MA.
+    off, metrics_off = update(state.replace(alpha=jnp.zeros(())), batch, jax.random.PRNGKey(4))
+    assert float(metrics_off["ma_penalty"]) == 0.0
+    assert update._cache_size() == 1
+    pairs = zip(jax.tree.leaves(off.params["actor"]), jax.tree.leaves(new.params["actor"]),
+                strict=True)  # fmt: skip
+    moved = [float(jnp.abs(a - b).max()) for a, b in pairs]
+    assert max(moved) > 0  # the penalty moved the actor
+    # The world model and the critic do not see the MA weight.
+    for name in ("world_model", "critic"):
+        for a, b in zip(
+            jax.tree.leaves(off.params[name]), jax.tree.leaves(new.params[name]), strict=True
+        ):
+            np.testing.assert_array_equal(a, b)
