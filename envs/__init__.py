@@ -60,8 +60,9 @@ class UnavailableEnvError(UnknownNameError):
     """An environment whose model file's package is not installed (the message names it)."""
 
 
-def make(name: str, physics: str | PhysicsOptions = "fast") -> LocomotionEnv:
-    """The environment ``name`` (one of ``ENV_NAMES``) with the given physics preset."""
+def make(name: str, physics: str | PhysicsOptions | None = None) -> LocomotionEnv:
+    """The environment ``name`` (one of ``ENV_NAMES``) with the given physics preset (None: the
+    environment's default, ``fast`` but for cheetah_run's DMC settings)."""
     if name not in ENVIRONMENTS:
         raise UnknownNameError(f"unknown environment {name!r}; choose from {', '.join(ENV_NAMES)}")
     if isinstance(physics, str) and physics not in PHYSICS_PRESETS:

@@ -63,6 +63,8 @@ class LocomotionEnv(Env, abc.ABC):
     # Physics steps with zero control after the reset noise, before the episode starts (the
     # DeepMind Control Suite lets its bodies settle this way); 0 for Gym's environments.
     settle_steps: int = 0
+    # The physics preset when none is named (mjcf.PHYSICS_PRESETS).
+    default_physics: str = "fast"
     # Observation index names for analysis (heatmaps); filled by subclasses.
     obs_names: tuple[str, ...] = ()
     projections: tuple[tuple[str, str], ...] = ()
@@ -75,18 +77,23 @@ class LocomotionEnv(Env, abc.ABC):
     failure_qvel_indices: tuple[int, int] = (0, 2)
     crippled_joints: tuple[tuple[str, ...], ...] = ()
 
-    def __init__(self, physics: str | mjcf.PhysicsOptions = "fast") -> None:
+    def __init__(self, physics: str | mjcf.PhysicsOptions | None = None) -> None:
+        physics = self.default_physics if physics is None else physics
         options = mjcf.PHYSICS_PRESETS[physics] if isinstance(physics, str) else physics
         self.physics_options = options
         model = mjcf.load_model(self.asset_file, options, self.asset_package)
         self.mj_model: mujoco.MjModel = model
-        self.mjx_model: mjx.Model = mjx.put_model(self.mj_model)
+        # This process's own device: with jax.distributed, jax.devices()[0] (MJX's default) can
+        # belong to another process.
+        self.device = jax.local_devices()[0]
+        self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, device=self.device)
         self.nominal_fields = NominalModelFields.from_model(self.mjx_model)
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
         self._init_qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
         self._init_qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
         self._nominal_task = make_task(self.mj_model)
-        self._obs_size = int(self.observation(mjx.make_data(self.mjx_model)).shape[-1])
+        data = mjx.make_data(self.mjx_model, device=self.device)
+        self._obs_size = int(self.observation(data).shape[-1])
 
     # ---- Brax Env interface -------------------------------------------------------------
     @property
@@ -115,7 +122,7 @@ class LocomotionEnv(Env, abc.ABC):
         rng, key_q, key_v = jax.random.split(rng, 3)
         qpos, qvel = self.reset_noise(key_q, key_v)
         model = apply_task(self.mjx_model, self.nominal_fields, task)
-        data = mjx.make_data(model).replace(qpos=qpos, qvel=qvel)
+        data = mjx.make_data(model, device=self.device).replace(qpos=qpos, qvel=qvel)
         if self.settle_steps:
             data, _ = jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None,
                                    self.settle_steps)  # fmt: skip

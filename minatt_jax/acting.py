@@ -25,6 +25,7 @@ from flax import struct
 
 from minatt_jax import min_attention as ma
 from minatt_jax import normalizer as obs_norm
+from minatt_jax.envs import sample_task
 from minatt_jax.replay import Transitions
 
 
@@ -173,6 +174,13 @@ class CollectStep(NamedTuple):
     ended: jax.Array  # (num_envs,) bool: terminated, reached the step limit, or non-finite
     finished_return: jax.Array  # sum of the returns of the finite episodes that ended this step
     finite: jax.Array  # (num_envs,) bool: the step's observation and reward are finite
+
+
+def reset_with_tasks(env: Any, task_set: Any, num_envs: int, key: jax.Array) -> EnvState:
+    """Fresh states of ``num_envs`` environments, each on a task drawn from ``task_set``."""
+    k_task, k_reset = jax.random.split(key)
+    tasks = jax.vmap(lambda k: sample_task(k, task_set))(jax.random.split(k_task, num_envs))
+    return jax.vmap(env.reset)(jax.random.split(k_reset, num_envs), tasks)
 
 
 def collect_step(

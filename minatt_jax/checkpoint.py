@@ -81,9 +81,22 @@ def _manifest(items: dict[str, Any]) -> dict[str, Any]:
 
 
 def _manager(run_dir: str, create: bool) -> ocp.CheckpointManager:
+    path = os.path.join(os.path.abspath(run_dir), "checkpoints")
     options = ocp.CheckpointManagerOptions(max_to_keep=2, create=create)
+    if jax.process_count() > 1:
+        # Every run directory belongs to one process, also in a population split over processes
+        # (jax.distributed): orbax must not wait for the other processes at its barriers, and
+        # then leaves making the folder to us.
+        index = jax.process_index()
+        alone = ocp.options.MultiprocessingOptions(
+            primary_host=index, active_processes={index}, barrier_sync_key_prefix=f"p{index}"
+        )
+        options = ocp.CheckpointManagerOptions(max_to_keep=2, create=False,
+                                               multiprocessing_options=alone)  # fmt: skip
+        if create:
+            os.makedirs(path, exist_ok=True)
     return ocp.CheckpointManager(
-        os.path.join(os.path.abspath(run_dir), "checkpoints"),
+        path,
         options=options,
         item_names=("state", "manifest"),
     )
@@ -107,7 +120,10 @@ def save(run_dir: str, step: int, state: Any) -> None:
     Orbax writes into a temporary directory and renames it when complete, so a crash or a full
     disk never leaves a half checkpoint that reads as complete. Raises CheckpointError (one line,
     orbax's own log lines silenced) when the checkpoint was not written."""
-    items = {k: v for k, v in named_leaves(state).items() if np.size(v) > 0}
+    # As host arrays: orbax refuses to write process-local device arrays when several processes
+    # run (jax.distributed); the values read back are numpy arrays in any case.
+    items = {k: np.asarray(v) for k, v in jax.device_get(named_leaves(state)).items()
+             if np.size(v) > 0}  # fmt: skip
     try:
         with _QuietAbsl(), _manager(run_dir, create=True) as manager:
             saved = manager.save(
@@ -360,6 +376,12 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
     from minatt_jax.training import make_agent
 
     config = run_files.load_config(run_dir)
+    if config.algo == "dreamer":
+        raise CheckpointError(
+            f"{run_dir} is a DreamerV3 run: its policy acts on the world model's latent state, "
+            "which evaluate, analyze, meta-test and export do not read yet; its evaluations are "
+            "in metrics.jsonl (the same metrics, written during training)"
+        )
     if step is None:
         step = latest_step(run_dir)
         if step is None:

@@ -83,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_roll.add_argument("--policy", choices=("zero", "random"), default="random")
     p_roll.add_argument("--seed", type=_non_negative_int, default=0)
     p_roll.add_argument(
-        "--physics", default="fast", help=f"solver preset: one of {', '.join(PHYSICS_PRESETS)}"
+        "--physics",
+        default=None,
+        help=f"solver preset: one of {', '.join(PHYSICS_PRESETS)} (default: the environment's)",
     )
     p_roll.add_argument("--out", default=None, help="write the summary as JSON to this file")
     p_roll.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -312,7 +314,7 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
         "policy": args.policy,
         "steps": args.steps,
         "seed": args.seed,
-        "physics": args.physics,
+        "physics": args.physics or env.default_physics,
         "compile_s": compile_s,
         "run_s": run_s,
         "env_steps_per_s": steps_per_s,

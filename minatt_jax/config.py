@@ -122,7 +122,7 @@ class TrainConfig:
     preset: str = "cpu"
     task_set: str | None = None  # None: "train" for mbmpo, else "nominal"
     tasks: tuple[str, ...] = ()  # custom tasks ("mass=1.25,slope=0.1"); replace task_set if given
-    physics: str = "fast"
+    physics: str | None = None  # None: the environment's default (fast; gym for cheetah_run)
     seed: int = 0
     total_steps: int = 50_000
     num_envs: int = 1
@@ -268,6 +268,11 @@ PRESETS: dict[str, TrainConfig] = {
         eval_every=5_000,
         eval_episodes=5,
         model=ModelConfig(max_epochs=10, max_batches_per_epoch=20),
+        # DreamerV3 at a size this CPU trains in an hour (benchmarks/dreamer_update.py: the
+        # official size1m with 16 x 64 batches runs 1.4 updates/s here, a day per 100K steps at
+        # train ratio 1024): half the recurrent state, sequences of 32, train ratio 256 (one
+        # update per 2 env steps). Everything else is the official proprioceptive setting.
+        dreamer=DreamerConfig(deter=256, batch_length=32, train_ratio=256.0),
     ),
     # The paper's appendix values (200K steps, 10 evaluation episodes).
     "paper": TrainConfig(

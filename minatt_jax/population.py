@@ -260,6 +260,9 @@ def train_population(
 ) -> list[dict[str, Any]]:
     """Trains (or resumes) this process's share of every group (all members in one process),
     group by group; returns each member's last record ({} for other processes' members)."""
+    if any(c.algo == "dreamer" for c in members):
+        raise RunError("populations of DreamerV3 runs are not supported yet: train its seeds as "
+                       "single runs (--seed N)")  # fmt: skip
     rank, processes = process or this_process()
     names = [member_name(c, swept) for c in members]
     if len(set(names)) != len(names):

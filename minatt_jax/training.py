@@ -233,9 +233,7 @@ def make_train(config: TrainConfig) -> Trainer:
         return b.replace(obs=normalize(norm, b.obs), next_obs=normalize(norm, b.next_obs))
 
     def reset_envs(key: jax.Array) -> EnvState:
-        k_task, k_reset = jax.random.split(key)
-        tasks = jax.vmap(lambda k: envs.sample_task(k, task_set))(jax.random.split(k_task, n))
-        return jax.vmap(env.reset)(jax.random.split(k_reset, n), tasks)
+        return acting.reset_with_tasks(env, task_set, n, key)
 
     @jax.jit
     def init_compiled(key: jax.Array) -> TrainState:

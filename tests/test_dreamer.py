@@ -184,3 +184,30 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
             jax.tree.leaves(off.params[name]), jax.tree.leaves(new.params[name]), strict=True
         ):
             np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.slow
+def test_cli_trains_cheetah_run_resumes_exactly_and_refuses_evaluate(tmp_path, capsys):
+    """``train --algo dreamer`` on cheetah_run (smoke): the whole program runs, writes the
+    metrics every algorithm writes, resumes exactly, and commands that do not read latent
+    policies yet say so in one line (exit 2)."""
+    from conftest import run_cli
+
+    from minatt_jax import runner
+
+    argv = ["train", "--env", "cheetah_run", "--algo", "dreamer", "--preset", "smoke",
+            "--alpha", "0.05"]  # fmt: skip
+    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
+    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
+    assert run_cli([*argv, "--steps", "300", "--out", split], capsys)[0] == 0
+    assert run_cli(["train", "--out", split, "--resume", "--steps", "600"], capsys)[0] == 0
+    a, b = runner.read_metrics(straight), runner.read_metrics(split)
+    assert [r["step"] for r in a] == [300, 600]
+    assert runner.without_timings(a) == runner.without_timings(b)
+    last = a[-1]
+    for key in ("return", "feedback_norm", "feedforward_norm", "energy", "jerk", "smoothness",
+                "wm_loss", "actor_loss", "critic_loss", "ma_feedback"):  # fmt: skip
+        assert np.isfinite(last[key]), key
+    assert last["updates"] > 0 and last["ma_feedback"] > 0
+    status, out = run_cli(["evaluate", straight], capsys)
+    assert status == 2 and "DreamerV3 run" in out.err and len(out.err.strip().splitlines()) == 1

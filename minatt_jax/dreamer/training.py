@@ -148,9 +148,7 @@ def make_dreamer_train(config: TrainConfig) -> Any:
     ready_at = max(config.warmup_steps, d.batch_length * n)
 
     def reset_envs(key: jax.Array) -> EnvState:
-        k_task, k_reset = jax.random.split(key)
-        tasks = jax.vmap(lambda k: envs.sample_task(k, task_set))(jax.random.split(k_task, n))
-        return jax.vmap(env.reset)(jax.random.split(k_reset, n), tasks)
+        return acting.reset_with_tasks(env, task_set, n, key)
 
     def first_step(env_state: EnvState) -> Batch:
         zeros = jnp.zeros((n,), jnp.float32)
