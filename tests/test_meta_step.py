@@ -50,7 +50,7 @@ def _flat(tree):
     return jnp.concatenate([x.ravel() for x in jax.tree.leaves(tree)])
 
 
-@pytest.mark.parametrize("inner", ["sac", "vpg"])
+@pytest.mark.parametrize("inner", ["sac", pytest.param("vpg", marks=pytest.mark.extended)])
 def test_meta_gradient_matches_finite_difference_and_first_order_differs(inner):
     with jax.enable_x64(True):
         key = jax.random.PRNGKey(3)
