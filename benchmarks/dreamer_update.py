@@ -85,14 +85,12 @@ def main() -> None:
             config, run_updates, agent_state, trainer, state = build(
                 size, alpha, args.updates, args.chunk_steps
             )
-            t = time.perf_counter()
             chunk = trainer.train_chunk.lower(state).compile()
-            compile_s = time.perf_counter() - t
             timed(run_updates, agent_state, jax.random.PRNGKey(0))  # compile and warm up
-            built[label] = (config, run_updates, agent_state, trainer, chunk, compile_s)
+            built[label] = (config, run_updates, agent_state, trainer, chunk)
         times: dict[str, dict[str, list[float]]] = {k: {"update": [], "chunk": []} for k in built}
         for _ in range(args.rounds):
-            for label, (_, run_updates, agent_state, trainer, chunk, _) in built.items():
+            for label, (_, run_updates, agent_state, trainer, chunk) in built.items():
                 times[label]["update"].append(
                     timed(run_updates, agent_state, jax.random.PRNGKey(1)) / args.updates
                 )
@@ -100,7 +98,7 @@ def main() -> None:
                 state = chunk(chunk(trainer.init(jax.random.PRNGKey(2)))[0])[0]
                 times[label]["chunk"].append(timed(chunk, state))
         base = statistics.median(times["MA off"]["update"])
-        for label, (config, _, _, trainer, _, compile_s) in built.items():
+        for label, (config, _, _, trainer, _) in built.items():
             update_s = statistics.median(times[label]["update"])
             chunk_s = statistics.median(times[label]["chunk"])
             d = config.dreamer
@@ -112,7 +110,6 @@ def main() -> None:
                 "train_ratio": d.train_ratio, "updates_per_s": 1.0 / update_s,
                 "update_cost_vs_ma_off": update_s / base,
                 "env_steps_per_s": trainer.steps_per_chunk / chunk_s,
-                "chunk_compile_s": compile_s,
             })  # fmt: skip
     result = {
         "device": f"{device.platform} ({device.device_kind})",
