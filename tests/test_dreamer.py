@@ -187,6 +187,7 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # three DreamerV3 compiles (9 minutes in CI beside the other worker)
 def test_cli_trains_cheetah_run_resumes_exactly_and_refuses_evaluate(tmp_path, capsys):
     """``train --algo dreamer`` on cheetah_run (smoke): the whole program runs, writes the
     metrics every algorithm writes, resumes exactly, and commands that do not read latent
@@ -195,8 +196,10 @@ def test_cli_trains_cheetah_run_resumes_exactly_and_refuses_evaluate(tmp_path, c
 
     from minatt_jax import runner
 
+    # The fast solver settings: the DMC ones (100 Newton iterations, self-collisions) compile
+    # for a minute longer, and test_cheetah_run.py checks them.
     argv = ["train", "--env", "cheetah_run", "--algo", "dreamer", "--preset", "smoke",
-            "--alpha", "0.05"]  # fmt: skip
+            "--alpha", "0.05", "--set", "physics=fast"]  # fmt: skip
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
     assert run_cli([*argv, "--out", straight], capsys)[0] == 0
     assert run_cli([*argv, "--steps", "300", "--out", split], capsys)[0] == 0

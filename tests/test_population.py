@@ -109,7 +109,7 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
 
 
 @pytest.mark.slow
-def test_population_resume_is_exact_and_splits_over_devices_and_processes(tmp_path):
+def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
     base = ["train", "--preset", "smoke", "--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
     straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
     assert main([*base, "--out", straight]) == 0
@@ -129,14 +129,25 @@ def test_population_resume_is_exact_and_splits_over_devices_and_processes(tmp_pa
     subprocess.run([sys.executable, "-m", "minatt_jax.cli", *base, "--steps", "300", "--out",
                     sharded], env=env, check=True, capture_output=True, timeout=900)  # fmt: skip
     _assert_same_members(straight, sharded, names)
-    # The same population over two processes (jax.distributed, one CPU device each): each
-    # trains the two members the forced two-device run put on its device.
+
+
+@pytest.mark.slow
+@pytest.mark.extended  # three more processes compiling (4 min on 2 cores): pytest -m extended
+def test_population_over_two_processes_equals_one_device(tmp_path):
+    """The same population over two processes (jax.distributed, one CPU device each): each
+    trains the two members a forced two-device run puts on its device."""
+    base = ["train", "--preset", "smoke", "--seeds", "0-1", "--sweep", "ma.alpha=0,1",
+            "--steps", "300"]  # fmt: skip
+    one_device = str(tmp_path / "one_device")
+    assert main([*base, "--out", one_device]) == 0
+    names = sorted(d for d in os.listdir(one_device) if d.startswith("sac_"))
+    assert len(names) == 4
     processes = str(tmp_path / "processes")
     with socket.socket() as s:
         s.bind(("localhost", 0))
         port = s.getsockname()[1]
     procs = [
-        subprocess.Popen([sys.executable, "-m", "minatt_jax.cli", *base, "--steps", "300",
+        subprocess.Popen([sys.executable, "-m", "minatt_jax.cli", *base,
                           "--out", processes, "--coordinator", f"localhost:{port}",
                           "--num-processes", "2", "--process-id", str(rank)],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -147,7 +158,7 @@ def test_population_resume_is_exact_and_splits_over_devices_and_processes(tmp_pa
     assert "2 members (process 2/2)" in outputs[1]
     with open(os.path.join(processes, "population.json")) as f:
         assert json.load(f)["processes"] == 2
-    _assert_same_members(straight, processes, names)
+    _assert_same_members(one_device, processes, names)
 
 
 def _assert_same_members(one_device: str, other: str, names: list[str]) -> None:
