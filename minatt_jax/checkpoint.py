@@ -122,8 +122,7 @@ def save(run_dir: str, step: int, state: Any) -> None:
     orbax's own log lines silenced) when the checkpoint was not written."""
     # As host arrays: orbax refuses to write process-local device arrays when several processes
     # run (jax.distributed); the values read back are numpy arrays in any case.
-    items = {k: np.asarray(v) for k, v in jax.device_get(named_leaves(state)).items()
-             if np.size(v) > 0}  # fmt: skip
+    items = {k: v for k, v in jax.device_get(named_leaves(state)).items() if np.size(v) > 0}
     try:
         with _QuietAbsl(), _manager(run_dir, create=True) as manager:
             saved = manager.save(

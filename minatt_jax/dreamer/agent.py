@@ -83,6 +83,7 @@ class DreamerAgent(NamedTuple):
     update: Callable[[AgentState, Batch, jax.Array], tuple[AgentState, dict]]
     initial_latent: Callable[[tuple[int, ...]], Latent]
     observe_step: Callable[..., tuple[Latent, jax.Array]]
+    observe: Callable[..., Latent]
     act: Callable[..., jax.Array]
     control: Callable[[Any, jax.Array], jax.Array]
     observation_control: Callable[[dict, Latent, jax.Array], jax.Array]
@@ -175,14 +176,26 @@ def make_agent(
             stoch = dist.sample_onehot(key, post)
         return Latent(deter, stoch), post
 
+    def observe(
+        wm_params: dict, latent: Latent, obs: jax.Array, prev_action: jax.Array,
+        is_first: jax.Array, key: jax.Array | None,
+    ) -> Latent:  # fmt: skip
+        """``observe_step`` on a raw observation (encoded here): the acting policy's filter."""
+        token = wm.apply(wm_params, obs, method=WorldModel.encode)
+        return observe_step(wm_params, latent, token, prev_action, is_first, key)[0]
+
+    def sample_action(actor_params: Any, latent: Latent, key: jax.Array) -> jax.Array:
+        """A sample of the bounded normal, unclipped (its log-probability is the actor's)."""
+        feat = feature(latent.deter, latent.stoch)
+        mean, std = dist.bounded_normal(*actor.apply(actor_params, feat), c.min_std, c.max_std)
+        return mean + std * jax.random.normal(key, mean.shape)
+
     def act(actor_params: Any, latent: Latent, key: jax.Array | None) -> jax.Array:
         """An action of the policy at a latent state: a sample (clipped to [-1, 1]) or, with
         ``key`` None, the deterministic control tanh(mean)."""
-        feat = feature(latent.deter, latent.stoch)
         if key is None:
-            return control(actor_params, feat)
-        mean, std = dist.bounded_normal(*actor.apply(actor_params, feat), c.min_std, c.max_std)
-        return jnp.clip(mean + std * jax.random.normal(key, mean.shape), -1.0, 1.0)
+            return control(actor_params, feature(latent.deter, latent.stoch))
+        return jnp.clip(sample_action(actor_params, latent, key), -1.0, 1.0)
 
     def world_model_loss(wm_params: dict, batch: Batch, key: jax.Array) -> tuple[jax.Array, tuple]:
         """Mean world-model loss over the batch; aux: (posterior latents (B, T), metrics)."""
@@ -224,7 +237,7 @@ def make_agent(
 
         def step(latent, k):
             k_act, k_z = jax.random.split(k)
-            action = _unclipped_action(actor_params, latent, k_act)
+            action = sample_action(actor_params, latent, k_act)
             deter = wm.apply(wm_params, latent.deter, latent.stoch, action,
                              method=WorldModel.core)  # fmt: skip
             prior = probs(wm.apply(wm_params, deter, method=WorldModel.prior))
@@ -237,12 +250,6 @@ def make_agent(
         reward = dist.twohot_mean(reward_logits, bins)
         cont = jnp.concatenate([start_cont[None], (cont_logit[1:] > 0).astype(jnp.float32)], 0)
         return {"feat": feats, "action": actions, "reward": reward, "cont": cont}
-
-    def _unclipped_action(actor_params: Any, latent: Latent, key: jax.Array) -> jax.Array:
-        """A sample of the bounded normal, unclipped (its log-probability is the actor's)."""
-        feat = feature(latent.deter, latent.stoch)
-        mean, std = dist.bounded_normal(*actor.apply(actor_params, feat), c.min_std, c.max_std)
-        return mean + std * jax.random.normal(key, mean.shape)
 
     def lambda_returns(reward: jax.Array, cont: jax.Array, value: jax.Array) -> jax.Array:
         """R_t = r_{t+1} + gamma c_{t+1} ((1 - lam) V_{t+1} + lam R_{t+1}), R_H = V_H; for
@@ -330,7 +337,8 @@ def make_agent(
 
     return DreamerAgent(
         config=c, world_model=wm, actor=actor, critic=critic, init=init, update=update,
-        initial_latent=initial_latent, observe_step=observe_step, act=act, control=control,
+        initial_latent=initial_latent, observe_step=observe_step, observe=observe, act=act,
+        control=control,
         observation_control=observation_control, world_model_loss=world_model_loss,
         imagine=imagine, lambda_returns=lambda_returns,
     )  # fmt: skip

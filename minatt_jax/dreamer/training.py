@@ -171,10 +171,8 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         col = ts.collector
         replay = ts.replay.add(col.step)
         params = ts.agent.params
-        token = agent.world_model.apply(params["world_model"], col.step.obs,
-                                        method=type(agent.world_model).encode)  # fmt: skip
-        latent, _ = agent.observe_step(params["world_model"], col.latent, token,
-                                       col.step.prev_action, col.step.is_first, k_obs)  # fmt: skip
+        latent = agent.observe(params["world_model"], col.latent, col.step.obs,
+                               col.step.prev_action, col.step.is_first, k_obs)  # fmt: skip
         policy_action = agent.act(params["actor"], latent, k_act)
         random_action = jax.random.uniform(k_random, (n, act_size), minval=-1.0, maxval=1.0)
         action = jnp.where(steps < config.warmup_steps, random_action, policy_action)
@@ -193,40 +191,47 @@ def make_dreamer_train(config: TrainConfig) -> Any:
             reward=reward, is_first=jnp.zeros((n,)), cont=1.0 - stepped.done,
         )  # fmt: skip
         step = jax.tree.map(pick, first_step(env_state), nxt)
-        finished_return = jnp.where(ended_next & ~col.ended, col.episode_return + reward, 0.0)
+        finished = ended_next & ~col.ended  # episodes that ended at this step
+        finished_return = jnp.where(finished, col.episode_return + reward, 0.0)
         collector = DreamerCollector(
             env_state=env_state, step=step, ended=jnp.where(col.ended, False, ended_next),
             latent=latent,
             episode_return=jnp.where(col.ended | ended_next, 0.0, col.episode_return + reward),
             episode_length=jnp.where(col.ended, 0, length),
         )  # fmt: skip
-        done_now = (ended_next & ~col.ended).astype(jnp.float32)
-        metrics = {"train_episode_return": jnp.sum(finished_return), "episodes": jnp.sum(done_now),
+        metrics = {"train_episode_return": jnp.sum(finished_return), "episodes": jnp.sum(finished),
                    "env_non_finite_resets": jnp.sum(~finite & ~col.ended)}  # fmt: skip
         return ts.replace(collector=collector, replay=replay), metrics
 
-    def updates(ts: DreamerTrainState, key: jax.Array) -> tuple[DreamerTrainState, dict]:
+    def updates(
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+    ) -> tuple[AgentState, dict]:
+        """The iteration's updates; only the agent state comes back (the replay is read)."""
+
         def one(state, k):
             k_sample, k_update = jax.random.split(k)
-            batch = ts.replay.sample(k_sample, d.batch_size, d.batch_length)
+            batch = replay.sample(k_sample, d.batch_size, d.batch_length)
             return agent.update(state, batch, k_update)
 
         agent_state, metrics = jax.lax.scan(
-            one, ts.agent, jax.random.split(key, updates_per_iteration)
+            one, agent_state, jax.random.split(key, updates_per_iteration)
         )
-        return ts.replace(agent=agent_state), jax.tree.map(jnp.sum, metrics)
+        return agent_state, jax.tree.map(jnp.sum, metrics)
 
-    metric_like = None
+    def no_updates(
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+    ) -> tuple[AgentState, dict]:
+        shapes = jax.eval_shape(updates, agent_state, replay, key)[1]
+        return agent_state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
     def iteration(ts: DreamerTrainState, steps: jax.Array) -> tuple[DreamerTrainState, dict]:
         rng, k_collect, k_update = jax.random.split(ts.rng, 3)
         ts, collect_metrics = collect(ts.replace(rng=rng), k_collect, steps)
         due = (steps + n >= ready_at) & ((steps // n) % iterations_per_update == 0)
-        zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metric_like)
-        ts, update_metrics = jax.lax.cond(
-            due, updates, lambda t, _: (t, zeros), ts, k_update
-        )  # fmt: skip
-        ts = ts.replace(env_steps=ts.env_steps + n)
+        agent_state, update_metrics = jax.lax.cond(
+            due, updates, no_updates, ts.agent, ts.replay, k_update
+        )
+        ts = ts.replace(agent=agent_state, env_steps=ts.env_steps + n)
         count = jnp.where(due, updates_per_iteration, 0)
         return ts, {**collect_metrics, **update_metrics, "updates": count}
 
@@ -257,9 +262,7 @@ def make_dreamer_train(config: TrainConfig) -> Any:
 
         def body(carry, _):
             state, latent, prev_action, first, alive = carry
-            token = agent.world_model.apply(wm_params, state.obs,
-                                            method=type(agent.world_model).encode)  # fmt: skip
-            latent, _ = agent.observe_step(wm_params, latent, token, prev_action, first, None)
+            latent = agent.observe(wm_params, latent, state.obs, prev_action, first, None)
             action = agent.control(params["actor"], feature(latent.deter, latent.stoch))
             jac = jax.jacfwd(lambda o: agent.observation_control(params, latent, o))(state.obs)
             nxt = env.step(state, action)
@@ -284,9 +287,6 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         )
         return EvalResult(metrics, actions, alive)
 
-    # The shapes of one update's summed metrics (the skipped branch returns zeros of them).
-    probe = jax.eval_shape(init, jax.random.PRNGKey(0))
-    metric_like = jax.eval_shape(updates, probe, jax.random.PRNGKey(0))[1]
     return Trainer(
         config=config, env=env, sac=None, task_set=task_set, init=jax.jit(init),
         train_chunk=jax.jit(train_chunk, donate_argnums=0), evaluate=evaluate,
