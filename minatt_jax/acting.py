@@ -4,6 +4,10 @@
   normalization), ``act`` maps (input, key) to an action, ``control`` is the deterministic control
   law u(x) whose Jacobian the feedback probe takes. Build one with ``deterministic``,
   ``stochastic``, ``zero_policy`` or ``random_policy``.
+* ``RecurrentPolicy``: a policy with memory (DreamerV3's world-model state): ``at(memory)`` is
+  the step's ``Policy`` (its control law u(x) at that memory, whose Jacobian the probe takes) and
+  ``remember(memory, x, action, key)`` the memory after the step, with the same key the step's
+  ``act`` got (so a sampled latent is the one that chose the action).
 * ``unroll``: a fixed number of steps from a given state as one ``lax.scan``, returning a
   ``Trajectory`` (with the exact ||du/dx||_F^2 per step when asked). Evaluation, meta-test data
   collection, the report's rollouts, the failure grid and ``minatt-jax rollout`` all use it.
@@ -35,6 +39,18 @@ class Policy(NamedTuple):
     act: Callable[[jax.Array, jax.Array | None], jax.Array]  # (policy input, key) -> action
     control: Callable[[jax.Array], jax.Array] | None = None  # deterministic u(policy input)
     prepare: Callable[[jax.Array], jax.Array] = lambda obs: obs  # observation -> policy input
+
+
+class RecurrentPolicy(NamedTuple):
+    """A policy with memory (see the module docstring); ``memory`` is the state before an
+    episode's first step."""
+
+    memory: Any
+    at: Callable[[Any], Policy]
+    remember: Callable[[Any, jax.Array, jax.Array, jax.Array | None], Any]
+
+
+AnyPolicy = Policy | RecurrentPolicy
 
 
 def _prepare(normalizer: obs_norm.Normalizer | None, normalize: bool) -> Callable:
@@ -92,6 +108,7 @@ class Trajectory:
     alive: jax.Array  # (T,) 1.0 up to and including the episode's first done
     env_metrics: dict[str, jax.Array]  # the environment's per-step metrics (reward terms, ...)
     feedback: jax.Array | None = None  # (T,) ||du/dx||_F^2 at each step, when probed
+    gain: jax.Array | None = None  # (T, act_dim, obs_dim) du/dx at each step, when probed
 
     def transitions(self) -> Transitions:
         """The steps as replay transitions (``terminal`` = ``done``)."""
@@ -101,21 +118,29 @@ class Trajectory:
 
 def unroll(
     env: Any,
-    policy: Policy,
+    policy: AnyPolicy,
     state: EnvState,
     steps: int,
     key: jax.Array | None = None,
     probe_feedback: bool = False,
+    probe_gain: bool = False,
 ) -> Trajectory:
     """``steps`` steps of ``policy`` from ``state``; ``key`` (split per step) feeds ``act``
-    (None for deterministic policies); ``probe_feedback`` records ||du/dx||_F^2 per step."""
-    if probe_feedback and policy.control is None:
+    (None for deterministic policies); ``probe_feedback`` records ||du/dx||_F^2 per step and
+    ``probe_gain`` the Jacobian du/dx itself (for a recurrent policy, with respect to this step's
+    input at the memory it acts with)."""
+    recurrent = isinstance(policy, RecurrentPolicy)
+    first = policy.at(policy.memory) if recurrent else policy
+    if (probe_feedback or probe_gain) and first.control is None:
         raise ValueError("probe_feedback needs a policy with a deterministic control")
 
     def body(carry, k):
-        state, alive = carry
-        x = policy.prepare(state.obs)
-        action = policy.act(x, k)
+        state, alive, memory = carry
+        step_policy = policy.at(memory) if recurrent else policy
+        x = step_policy.prepare(state.obs)
+        action = step_policy.act(x, k)
+        if recurrent:
+            memory = policy.remember(memory, x, action, k)
         nxt = env.step(state, action)
         out = {
             "obs": state.obs,
@@ -127,12 +152,17 @@ def unroll(
             "alive": alive,
             "env_metrics": nxt.metrics,
         }
+        if probe_gain:
+            out["gain"] = jax.jacfwd(step_policy.control)(x)
         if probe_feedback:
-            out["feedback"] = feedback_at(policy.control, x)
-        return (nxt, alive * (1.0 - nxt.done)), out
+            out["feedback"] = (jnp.sum(jnp.square(out["gain"])) if probe_gain
+                               else feedback_at(step_policy.control, x))  # fmt: skip
+        return (nxt, alive * (1.0 - nxt.done), memory), out
 
     keys = None if key is None else jax.random.split(key, steps)
-    _, out = jax.lax.scan(body, (state, jnp.ones((), jnp.float32)), keys, length=steps)
+    memory = policy.memory if recurrent else None
+    start = (state, jnp.ones((), jnp.float32), memory)
+    _, out = jax.lax.scan(body, start, keys, length=steps)
     return Trajectory(**out)
 
 

@@ -358,29 +358,36 @@ class Policy(NamedTuple):
     config: TrainConfig
     step: int
     env: Any  # the run's environment (LocomotionEnv)
-    agent: Any  # the SAC functions (control, sample, ...)
-    actor_params: Any
+    agent: Any  # the algorithm's agent functions (SAC: control, sample, ...; DreamerAgent)
+    actor_params: Any  # the policy's parameters (DreamerV3: world model and actor)
     normalizer: Any
+    family: Any  # policies.PolicyFamily: how these parameters act
 
     def control(self, obs: jax.Array) -> jax.Array:
-        """The deterministic control u(obs) (observation normalization applied)."""
+        """The deterministic control u(obs) (observation normalization applied) of a
+        feedforward policy; a recurrent one (DreamerV3) acts through ``acting_policy``."""
+        if self.family.recurrent:
+            raise CheckpointError(
+                f"the {self.config.algo} policy is recurrent: u depends on its memory; act with "
+                "policy.acting_policy() (acting.unroll runs it)"
+            )
         x = obs_norm.normalize(self.normalizer, obs, self.config.sac.normalize_obs)
         return self.agent.control(self.actor_params, x)
+
+    def acting_policy(self, stochastic: bool = False) -> Any:
+        """The policy as an ``acting`` policy (deterministic or sampling) for ``acting.unroll``."""
+        build = self.family.stochastic if stochastic else self.family.deterministic
+        return build(self.actor_params, self.normalizer)
 
 
 def load_policy(run_dir: str, step: int | None = None) -> Policy:
     """The policy of ``run_dir`` at ``step`` (default: the latest checkpoint) without building a
-    trainer: from the step's policy snapshot, or from the checkpoint's agent and normalizer items
+    trainer: from the step's policy snapshot, or from the checkpoint's items that hold the policy
     alone when there is no snapshot. No replay or model buffer is allocated."""
-    from minatt_jax.training import make_agent
+    import minatt_jax.envs as envs
+    from minatt_jax.policies import family
 
     config = run_files.load_config(run_dir)
-    if config.algo == "dreamer":
-        raise CheckpointError(
-            f"{run_dir} is a DreamerV3 run: its policy acts on the world model's latent state, "
-            "which evaluate, analyze, meta-test and export do not read yet; its evaluations are "
-            "in metrics.jsonl (the same metrics, written during training)"
-        )
     if step is None:
         step = latest_step(run_dir)
         if step is None:
@@ -388,23 +395,16 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
             if not snapshots:
                 raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
             step = snapshots[-1]
-    import minatt_jax.envs as envs
-
     env = envs.make(config.env, config.physics)
-    agent = make_agent(config, env)
-    actor_like = jax.eval_shape(agent.init, jax.random.PRNGKey(0)).actor_params
-    actor_like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), actor_like)
-    norm_like = obs_norm.init_normalizer(env.observation_size)
+    kind = family(config, env)
     if step in snapshot_steps(run_dir):
-        actor, norm = load_policy_snapshot(run_dir, step, (actor_like, norm_like))
+        params, norm = load_policy_snapshot(run_dir, step, kind.like)
     else:
-        _, parts = restore_items(
-            run_dir, {"agent/actor_params": actor_like, "data/normalizer": norm_like}, step
-        )
-        actor, norm = parts["agent/actor_params"], parts["data/normalizer"]
-    if not all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves((actor, norm))):
+        _, parts = restore_items(run_dir, kind.checkpoint_items, step)
+        params, norm = kind.from_items(parts)
+    if not all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves((params, norm))):
         raise CheckpointError(
             f"the policy of {run_dir} at step {step} has non-finite weights (its training "
             "diverged); use an earlier step"
         )
-    return Policy(config, step, env, agent, actor, norm)
+    return Policy(config, step, env, kind.agent, params, norm, kind)

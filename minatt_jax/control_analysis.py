@@ -30,7 +30,12 @@ def decompose(
 ) -> dict[str, jax.Array]:
     """K (T, act, obs), v (T, act), u (T, act) and their norms along states ``obs`` (T, obs)."""
     u = jax.vmap(lambda x: control(params, x))(obs)
-    gain = ma.control_jacobian(control, params, obs)
+    return decompose_gains(ma.control_jacobian(control, params, obs), u, obs)
+
+
+def decompose_gains(gain: jax.Array, u: jax.Array, obs: jax.Array) -> dict[str, jax.Array]:
+    """``decompose`` from Jacobians already taken (``acting.unroll``'s gain probe: how a
+    recurrent policy's K(t) at its memory is read)."""
     v = u - jnp.einsum("tao,to->ta", gain, obs)
     feedback = jnp.sum(jnp.square(gain), axis=(1, 2))  # ||du/dx||_F^2 per state
     return {
@@ -65,12 +70,13 @@ def binned_means(
 
 def make_failure_grid(
     env: Any,
-    control: Callable[[Any, jax.Array], jax.Array],
+    policy_of: Callable[[Any], acting.AnyPolicy],
     steps: int = 100,
     rollouts: int = 20,
     noise: float = 0.01,
 ) -> Callable[..., jax.Array]:
-    """A jitted ``(params, vx (nx,), w (ny,), key, task) -> failure rate (nx, ny)``.
+    """A jitted ``(params, vx (nx,), w (ny,), key, task) -> failure rate (nx, ny)``;
+    ``policy_of(params)`` is the deterministic policy.
 
     Each cell starts ``rollouts`` episodes from the initial state with forward velocity ``vx``
     and torso angular velocity ``w`` (plus N(0, noise^2) on every qpos and qvel entry), runs the
@@ -94,7 +100,7 @@ def make_failure_grid(
         data = mjx.forward(model, data.replace(qpos=qpos, qvel=qvel))
         state = state.replace(pipeline_state=data, obs=env.observation(data))
 
-        traj = acting.unroll(env, acting.deterministic(control, params), state, steps)
+        traj = acting.unroll(env, policy_of(params), state, steps)
         return jnp.max(env.failed(traj.next_obs))
 
     def grid(params, vx, w, key, task):

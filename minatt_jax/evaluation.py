@@ -41,20 +41,21 @@ class EvalResult:
 
 def make_evaluator(
     env: envs.LocomotionEnv,
-    control: Callable[[Any, jax.Array], jax.Array],
+    policy_of: Callable[[Any, Any], acting.AnyPolicy],
     max_steps: int,
-    normalize_obs: bool,
     episodes: int,
-) -> Callable[[Any, obs_norm.Normalizer, jax.Array, envs.Task], EvalResult]:
-    """A jitted ``(actor_params, normalizer, key, task_set) -> EvalResult``.
+) -> Callable[[Any, Any, jax.Array, envs.Task], EvalResult]:
+    """A jitted ``(params, normalizer, key, task_set) -> EvalResult``; ``policy_of(params,
+    normalizer)`` is the deterministic policy (``deterministic_of`` for a feedforward control
+    law, a recurrent policy for DreamerV3).
 
     Episode i runs task ``i % num_tasks`` of the task set (``acting.unroll`` with the exact
     feedback probe).
     """
     dt = env.dt
 
-    def episode(params: Any, norm: obs_norm.Normalizer, key: jax.Array, task: envs.Task):
-        policy = acting.deterministic(control, params, norm, normalize_obs)
+    def episode(params: Any, norm: Any, key: jax.Array, task: envs.Task):
+        policy = policy_of(params, norm)
         traj = acting.unroll(env, policy, env.reset(key, task), max_steps, probe_feedback=True)
         return acting.episode_metrics(traj, dt), traj.action, traj.alive
 
@@ -68,6 +69,14 @@ def make_evaluator(
         return EvalResult(metrics, actions, alive)
 
     return jax.jit(evaluate)
+
+
+def deterministic_of(
+    control: Callable[[Any, jax.Array], jax.Array], normalize_obs: bool
+) -> Callable[[Any, obs_norm.Normalizer], acting.Policy]:
+    """``(params, normalizer) -> `` the deterministic feedforward policy u = control(params, x)
+    on (normalized, where ``normalize_obs``) observations x."""
+    return lambda params, norm: acting.deterministic(control, params, norm, normalize_obs)
 
 
 def smoothness(actions: np.ndarray, alive: np.ndarray, dt: float) -> np.ndarray:

@@ -32,6 +32,12 @@ def export_policy(run_dir: str, out: str, step: int | None = None) -> dict[str, 
     OSError for a path it cannot write."""
     policy = checkpoint.load_policy(run_dir, step)
     config, env = policy.config, policy.env
+    if policy.family.recurrent:
+        raise checkpoint.CheckpointError(
+            f"{run_dir} is a {config.algo} run: its policy is recurrent (a world model's state "
+            "and an actor), and export writes feedforward actors for numpy; load it with "
+            "minatt_jax.checkpoint.load_policy instead"
+        )
     metadata = {
         "format": EXPORT_FORMAT,
         "env": config.env,

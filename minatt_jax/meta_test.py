@@ -13,7 +13,10 @@ For every task of a task set (mass, crippled, slope, ...):
      theta <- theta - beta grad L(theta) on each slot's imagined data, averaged over slots.
      mbmpo uses its own inner step (``mb.meta_inner``: the SAC actor loss on one-step
      transitions, or VPG on ``vpg_horizon``-step trajectories; first-order or not; beta =
-     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step.
+     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step;
+   * dreamer: ``updates_per_step`` DreamerV3 updates (world model, actor, critic; MA included)
+     on sequences sampled from the K collected episodes (its policy is recurrent: collection and
+     evaluation run it through ``policies``, feedback with respect to the observation).
 
 Every jitted function takes the task as data, so all tasks of a set run through one compiled
 program. Returns per task and per step: return, feedback norm, feedforward norm, energy.
@@ -59,23 +62,48 @@ class MetaTestConfig:
 
 
 def _collector(env, policy_of: Callable, max_steps: int, shots: int):
-    """(params, norm, key, task) -> (Transitions (shots*max_steps,), valid mask): ``shots``
-    episodes of the stochastic policy (``acting.unroll``)."""
+    """(params, norm, key, task) -> Trajectory (shots, max_steps, ...): ``shots`` episodes of
+    the stochastic policy (``acting.unroll``)."""
 
     def episode(params, norm, key, task):
         k_reset, k_run = jax.random.split(key)
-        traj = acting.unroll(env, policy_of(params, norm), env.reset(k_reset, task), max_steps,
+        return acting.unroll(env, policy_of(params, norm), env.reset(k_reset, task), max_steps,
                              key=k_run)  # fmt: skip
-        return traj.transitions(), traj.alive
 
     def collect(params, norm, key, task):
-        data, alive = jax.vmap(episode, in_axes=(None, None, 0, None))(
+        return jax.vmap(episode, in_axes=(None, None, 0, None))(
             params, norm, jax.random.split(key, shots), task
         )
-        flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), data)
-        return flat, alive.reshape(-1)
 
     return jax.jit(collect)
+
+
+def _flat(traj: acting.Trajectory) -> tuple[Any, jax.Array]:
+    """The episodes' transitions and alive mask, flattened to (episodes * steps,)."""
+    flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
+    return jax.tree.map(flat, traj.transitions()), flat(traj.alive)
+
+
+def _dreamer_adapt(agent_fns: Any, config: Any, settings: MetaTestConfig) -> Callable:
+    """DreamerV3's adaptation step: ``updates_per_step`` updates (world model, actor, critic,
+    MA included) on windows of the run's sequence length sampled from the collected episodes."""
+    from minatt_jax.dreamer.training import episode_sequences, sample_episode_sequences
+
+    d = config.dreamer
+
+    @jax.jit
+    def adapt(agent, traj, key):
+        episodes, lengths = episode_sequences(traj)
+
+        def one(agent, k):
+            k_batch, k_update = jax.random.split(k)
+            batch = sample_episode_sequences(episodes, lengths, k_batch, d.batch_size,
+                                             d.batch_length)  # fmt: skip
+            return agent_fns.update(agent, batch, k_update)[0], None
+
+        return jax.lax.scan(one, agent, jax.random.split(key, settings.updates_per_step))[0]
+
+    return adapt
 
 
 def meta_test(
@@ -92,8 +120,9 @@ def meta_test(
         envs.check_task_set_name(variant)
     except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
         raise runner.RunError(str(e)) from None
-    config, env, sac = policy.config, policy.env, policy.agent
+    config, env, sac, kind = policy.config, policy.env, policy.agent, policy.family
     model_based = config.model_based
+    dreamer = config.algo == "dreamer"
     # The agent (and the ensemble) alone: no replay or model buffers are allocated.
     like = {"agent": jax.eval_shape(sac.init, jax.random.PRNGKey(0))}
     ensemble = None
@@ -116,11 +145,18 @@ def meta_test(
     def normalize(obs):
         return obs_norm.normalize(normalizer, obs, norm_on)
 
-    evaluator = make_evaluator(env, sac.control, max_steps, norm_on, settings.episodes)
-    collect = _collector(
-        env, lambda p, n: acting.stochastic(sac.sample, sac.control, p, n, norm_on), max_steps,
-        settings.shots,
-    )  # fmt: skip
+    evaluator = make_evaluator(env, kind.deterministic, max_steps, settings.episodes)
+    collect = _collector(env, kind.stochastic, max_steps, settings.shots)
+    if dreamer:
+        adapt = _dreamer_adapt(sac, config, settings)
+
+        def policy_params(agent):
+            return {"world_model": agent.params["world_model"], "actor": agent.params["actor"]}
+    else:
+
+        def policy_params(agent):
+            return agent.actor_params
+
     capacity = settings.shots * max_steps
     batch = config.sac.batch_size
 
@@ -128,7 +164,7 @@ def meta_test(
         empty = replay.init_buffer(capacity, env.observation_size, env.action_size)
         return replay.insert_masked(empty, data, valid)
 
-    if not model_based:
+    if not model_based and not dreamer:
 
         @jax.jit
         def adapt(agent, data, valid, key):
@@ -143,7 +179,7 @@ def meta_test(
             keys = jax.random.split(key, settings.updates_per_step)
             return jax.lax.scan(one, agent, keys)[0]
 
-    else:
+    elif model_based:
         # mbmpo adapts with its own inner step (inner objective, first-order or not, beta);
         # mbpo, which has no meta step, with the SAC inner step at the run's meta_inner_lr.
         meta = make_meta(config, sac) if config.algo == "mbmpo" else make_meta_step(
@@ -194,13 +230,13 @@ def meta_test(
         agent = trained_agent
 
         def evaluate(agent, i, task_set=task_set, k_task=k_task):
-            result = evaluator(agent.actor_params, normalizer,
+            result = evaluator(policy_params(agent), normalizer,
                                jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
             return summarize(jax.device_get(result), env.dt)
 
         curve = [evaluate(agent, 0)]
-        data, valid = collect(agent.actor_params, normalizer,
-                              jax.random.fold_in(k_task, 1), task)  # fmt: skip
+        traj = collect(policy_params(agent), normalizer, jax.random.fold_in(k_task, 1), task)
+        data, valid = _flat(traj)
         ens_state = None
         if model_based and settings.adapt_steps > 0:
             ens_state = refit(parts["model"], data, valid, jax.random.fold_in(k_task, 2))
@@ -208,6 +244,8 @@ def meta_test(
             k = jax.random.fold_in(k_task, 10 + i)
             if model_based:
                 agent = adapt(agent, ens_state, data, valid, k)
+            elif dreamer:
+                agent = adapt(agent, traj, k)
             else:
                 agent = adapt(agent, data, valid, k)
             curve.append(evaluate(agent, i))

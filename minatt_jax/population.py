@@ -38,7 +38,7 @@ import numpy as np
 
 from minatt_jax import checkpoint, run_guard, runner
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
-from minatt_jax.evaluation import make_evaluator, summarize
+from minatt_jax.evaluation import deterministic_of, make_evaluator, summarize
 from minatt_jax.run_files import (
     DivergedError,
     RunError,
@@ -179,8 +179,8 @@ class Program:
             self.chunk = jax.jit(chunk, donate_argnums=0, in_shardings=self.sharding,
                                  out_shardings=self.sharding)  # fmt: skip
         cfg = self.config
-        evaluator = make_evaluator(t.env, t.sac.control, cfg.max_episode_steps,
-                                   cfg.sac.normalize_obs, cfg.eval_episodes)  # fmt: skip
+        evaluator = make_evaluator(t.env, deterministic_of(t.sac.control, cfg.sac.normalize_obs),
+                                   cfg.max_episode_steps, cfg.eval_episodes)  # fmt: skip
         self.evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, 0, 0, None)))
 
     def init(self) -> TrainState:

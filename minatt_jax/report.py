@@ -35,10 +35,9 @@ import numpy as np
 import minatt_jax.envs as envs
 from minatt_jax import acting, checkpoint, runner
 from minatt_jax import control_analysis as ca
-from minatt_jax import normalizer as obs_norm
 from minatt_jax.config import TrainConfig
 from minatt_jax.plots import _pyplot, save_figure
-from minatt_jax.training import make_agent
+from minatt_jax.policies import family
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
@@ -90,19 +89,20 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
 
 
 class _GroupTools:
-    """Jitted functions for one group's shapes (built once, shared by its seeds)."""
+    """Jitted functions for one group's shapes (built once, shared by its seeds); the policy
+    family (``policies``) makes them the same for feedforward and recurrent policies."""
 
     def __init__(self, config: TrainConfig, settings: AnalyzeConfig) -> None:
         env = envs.make(config.env, config.physics)
-        sac = make_agent(config, env)
-        self.env, self.sac, self.config = env, sac, config
-        norm_on = config.sac.normalize_obs
+        self.family = family(config, env)
+        self.env, self.config = env, config
         steps = config.max_episode_steps
         dt = env.dt
+        policy_of = self.family.deterministic
 
         def rollout(params, norm, key, task):
-            policy = acting.deterministic(sac.control, params, norm, norm_on)
-            traj = acting.unroll(env, policy, env.reset(key, task), steps, probe_feedback=True)
+            traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
+                                 probe_feedback=True)  # fmt: skip
             u = traj.action
             u_prev = jnp.concatenate([u[:1], u[:-1]])
             return {
@@ -114,26 +114,33 @@ class _GroupTools:
                 "feedforward": jnp.sum(jnp.square((u - u_prev) / dt), -1),
             }
 
+        def gains(params, norm, key, task):
+            """One rollout with u = K(t) x + v(t)'s parts: x, u, K and alive."""
+            traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
+                                 probe_gain=True)  # fmt: skip
+            return traj.policy_obs, traj.action, traj.gain, traj.alive
+
         self.rollouts = jax.jit(jax.vmap(rollout, in_axes=(None, None, 0, None)))
+        self.gains = jax.jit(gains)
         self.grid = ca.make_failure_grid(
-            env,
-            lambda p, obs: sac.control(p[0], obs_norm.normalize(p[1], obs, norm_on)),
-            steps=settings.grid_steps,
+            env, lambda p: policy_of(p[0], p[1]), steps=settings.grid_steps,
             rollouts=settings.grid_rollouts,
-        )
-        actor = jax.eval_shape(sac.init, jax.random.PRNGKey(0)).actor_params
-        self.policy_like = (
-            jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), actor),
-            obs_norm.init_normalizer(env.observation_size),
-        )
+        )  # fmt: skip
+        self.policy_like = self.family.like
 
     def restore(self, run_dir: str):
-        """(step, actor parameters, normalizer) of the run's latest policy (no trainer)."""
+        """(step, policy parameters, normalizer) of the run's latest policy (no trainer)."""
         try:
             policy = checkpoint.load_policy(run_dir)
         except checkpoint.CheckpointError as e:
             raise runner.RunError(str(e)) from None
         return policy.step, policy.actor_params, policy.normalizer
+
+    def decompose(self, params, norm, key, task) -> dict[str, np.ndarray]:
+        """u = K(t) x + v(t) along one deterministic rollout (its alive steps)."""
+        x, u, gain, alive = jax.device_get(self.gains(params, norm, key, task))
+        keep = np.asarray(alive) > 0
+        return jax.device_get(ca.decompose_gains(gain[keep], u[keep], x[keep]))
 
 
 def _visited(tools: _GroupTools, params, norm, key, episodes: int, task) -> dict[str, np.ndarray]:
@@ -344,12 +351,8 @@ def analyze(
             if n == 0:
                 decomposition[g] = {}
                 for name, task in (("nominal", nominal), (settings.perturbation, perturbed)):
-                    one = _visited(t, params, norm, jax.random.fold_in(key, 99), 1, task)
-                    alive = one["alive"][0]
-                    obs = jnp.asarray(one["policy_obs"][0][alive])
-                    decomposition[g][name] = jax.device_get(
-                        ca.decompose(t.sac.control, params, obs)
-                    )
+                    decomposition[g][name] = t.decompose(params, norm, jax.random.fold_in(key, 99),
+                                                         task)  # fmt: skip
         states[g] = {k: np.concatenate([p[k] for p in pooled])
                      for k in ("obs", "feedback", "feedforward")}  # fmt: skip
         grids[g] = np.mean(grid_list, axis=0)

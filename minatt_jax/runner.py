@@ -344,13 +344,18 @@ def evaluate_run(
     except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise RunError(str(e)) from None
     if engine == "mujoco":
+        if policy.family.recurrent:
+            raise RunError(
+                f"{run_dir} is a {config.algo} run: its policy is recurrent, and the C-engine "
+                "evaluation steps memoryless policies; evaluate it with --engine mjx"
+            )
         try:
             metrics = mujoco_engine.evaluate(policy, tasks, episodes, seed)
         except (ValueError, mujoco_engine.MissingExtraError) as e:
             raise RunError(str(e)) from None
     else:
-        evaluator = make_evaluator(env, policy.agent.control, config.max_episode_steps,
-                                   config.sac.normalize_obs, episodes)  # fmt: skip
+        evaluator = make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
+                                   episodes)  # fmt: skip
         result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),
                            envs.stack_tasks(tasks))  # fmt: skip
         metrics = summarize(jax.device_get(result), env.dt)

@@ -44,7 +44,7 @@ from minatt_jax import acting, imagination, replay
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.config import TrainConfig
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, make_ensemble
-from minatt_jax.evaluation import EvalResult, make_evaluator
+from minatt_jax.evaluation import EvalResult, deterministic_of, make_evaluator
 from minatt_jax.maml import MetaStep, Trajectories, make_meta_step
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import SAC, SACState, make_sac
@@ -514,8 +514,8 @@ def make_train(config: TrainConfig) -> Trainer:
     def train_chunk(ts: TrainState) -> tuple[TrainState, dict]:
         return run_chunk(ts, ts.env_steps, members=False)
 
-    evaluator = make_evaluator(env, sac.control, config.max_episode_steps, norm_on,
-                               config.eval_episodes)  # fmt: skip
+    evaluator = make_evaluator(env, deterministic_of(sac.control, norm_on),
+                               config.max_episode_steps, config.eval_episodes)  # fmt: skip
 
     def evaluate(ts: TrainState, key: jax.Array, tasks: envs.Task) -> EvalResult:
         return evaluator(ts.agent.actor_params, ts.data.normalizer, key, tasks)

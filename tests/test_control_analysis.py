@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from minatt_jax import acting
 from minatt_jax import control_analysis as ca
 from minatt_jax.config import SACConfig
 from minatt_jax.min_attention import MAConfig
@@ -74,7 +75,7 @@ def test_projections_name_real_observations(make_env):
 
 def test_failure_grid_zero_policy_on_hopper(make_env):
     env = make_env("hopper")
-    grid = ca.make_failure_grid(env, lambda p, x: jnp.zeros(3), steps=60, rollouts=3)
+    grid = ca.make_failure_grid(env, lambda p: acting.zero_policy(3), steps=60, rollouts=3)
     rates = np.asarray(
         grid(None, jnp.array([0.0, 3.0]), jnp.array([0.0, 6.0]), jax.random.PRNGKey(0),
              env.nominal_task())

@@ -188,10 +188,9 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
 
 @pytest.mark.slow
 @pytest.mark.extended  # three DreamerV3 compiles (9 minutes in CI beside the other worker)
-def test_cli_trains_cheetah_run_resumes_exactly_and_refuses_evaluate(tmp_path, capsys):
+def test_cli_trains_cheetah_run_and_resumes_exactly(tmp_path, capsys):
     """``train --algo dreamer`` on cheetah_run (smoke): the whole program runs, writes the
-    metrics every algorithm writes, resumes exactly, and commands that do not read latent
-    policies yet say so in one line (exit 2)."""
+    metrics every algorithm writes and resumes exactly."""
     from conftest import run_cli
 
     from minatt_jax import runner
@@ -212,5 +211,72 @@ def test_cli_trains_cheetah_run_resumes_exactly_and_refuses_evaluate(tmp_path, c
                 "wm_loss", "actor_loss", "critic_loss", "ma_feedback"):  # fmt: skip
         assert np.isfinite(last[key]), key
     assert last["updates"] > 0 and last["ma_feedback"] > 0
-    status, out = run_cli(["evaluate", straight], capsys)
-    assert status == 2 and "DreamerV3 run" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+def test_recurrent_policy_unroll_matches_a_manual_filter(agent):
+    """``acting.unroll`` of the agent's deterministic policy acts as a hand-written loop of
+    the filter (posterior mode) and the actor, and its gain probe is du/dobs at each step's h."""
+    from minatt_jax import acting
+
+    class Env:  # a linear toy system: the policy, not the physics, is under test
+        def step(self, state, action):
+            obs = 0.9 * state.obs + 0.3 * jnp.concatenate([action, action[:1] * 2, action])
+            return state.replace(obs=obs, reward=jnp.sum(obs), done=jnp.zeros(()))
+
+    from brax.envs.base import State
+
+    params = agent.init(jax.random.PRNGKey(0), 0.5).params
+    state = State(pipeline_state=None, obs=jnp.linspace(-1.0, 1.0, 5), reward=jnp.zeros(()),
+                  done=jnp.zeros(()), metrics={})  # fmt: skip
+    traj = acting.unroll(Env(), agent.policy(params, False), state, 6, probe_gain=True,
+                         probe_feedback=True)  # fmt: skip
+    latent, prev, first, obs = agent.initial_latent(()), jnp.zeros(2), jnp.ones(()), state.obs
+    for t in range(6):
+        latent = agent.observe(params["world_model"], latent, obs, prev, first, None)
+        u = agent.control(params["actor"], feature(latent.deter, latent.stoch))
+        np.testing.assert_allclose(traj.action[t], u, atol=1e-6)
+        gain = jax.jacfwd(lambda o, lt=latent: agent.observation_control(params, lt, o))(obs)
+        np.testing.assert_allclose(traj.gain[t], gain, atol=1e-6)
+        np.testing.assert_allclose(traj.feedback[t], jnp.sum(gain**2), rtol=1e-5)
+        obs, prev, first = traj.next_obs[t], u, jnp.zeros(())
+    assert float(jnp.std(traj.action[:, 0])) > 0  # the memory and the input change the action
+
+
+@pytest.mark.slow
+def test_trained_run_evaluates_meta_tests_analyzes_and_refuses_export(tmp_path, capsys):
+    """A DreamerV3 run goes through the tools every algorithm's runs go through: ``evaluate``,
+    ``meta-test`` (its adaptation step changes the policy), ``analyze``; ``export`` (feedforward
+    actors for numpy) refuses it in one line."""
+    import json
+
+    from conftest import run_cli
+
+    run = str(tmp_path / "run")
+    train = ["train", "--env", "cheetah_run", "--algo", "dreamer", "--preset", "smoke",
+             "--steps", "300", "--set", "physics=fast", "--set", "max_episode_steps=60",
+             "--alpha", "0.05", "--out", run]  # fmt: skip
+    assert run_cli(train, capsys)[0] == 0
+    status, out = run_cli(["evaluate", run, "--episodes", "2", "--json"], capsys)
+    assert status == 0, out.err
+    metrics = json.loads(out.out)
+    assert metrics["step"] == 300 and np.isfinite(metrics["return"])
+    assert metrics["feedback_norm"] > 0 and metrics["energy"] > 0
+    meta = ["meta-test", run, "--variant", "mass", "--adapt-steps", "1", "--episodes", "1",
+            "--updates-per-step", "2", "--json"]  # fmt: skip
+    status, out = run_cli(meta, capsys)
+    assert status == 0, out.err
+    result = json.loads(out.out)
+    assert len(result["tasks"]) > 1 and result["algo"] == "dreamer"
+    for row in result["tasks"]:
+        assert len(row["feedback_norm_curve"]) == 2
+        assert row["feedback_norm_curve"][0] != row["feedback_norm_curve"][1]  # adapted
+    report = str(tmp_path / "report")
+    analyze = ["analyze", run, "--out", report, "--episodes", "1", "--bins", "4", "--grid", "2",
+               "--grid-rollouts", "1", "--grid-steps", "10"]  # fmt: skip
+    status, out = run_cli(analyze, capsys)
+    assert status == 0, out.err
+    with open(f"{report}/failure_grid.json") as f:
+        rates = np.asarray(next(iter(json.load(f)["failure_rate"].values())))
+    assert rates.shape == (2, 2) and np.all((rates >= 0) & (rates <= 1))
+    status, out = run_cli(["export", run, "--out", str(tmp_path / "p.npz")], capsys)
+    assert status == 2 and "recurrent" in out.err and len(out.err.strip().splitlines()) == 1

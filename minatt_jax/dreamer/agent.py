@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from minatt_jax import acting
 from minatt_jax import min_attention as ma
 from minatt_jax.dreamer import distributions as dist
 from minatt_jax.dreamer.config import DreamerConfig
@@ -90,6 +91,7 @@ class DreamerAgent(NamedTuple):
     world_model_loss: Callable[..., tuple[jax.Array, tuple]]
     imagine: Callable[..., dict]
     lambda_returns: Callable[..., jax.Array]
+    policy: Callable[[dict, bool], acting.RecurrentPolicy]
 
 
 def adaptive_clip(clip: float, floor: float = 1e-3) -> optax.GradientTransformation:
@@ -160,21 +162,33 @@ def make_agent(
     def initial_latent(batch: tuple[int, ...]) -> Latent:
         return Latent(jnp.zeros((*batch, c.deter)), jnp.zeros((*batch, c.stoch, c.classes)))
 
-    def observe_step(
-        wm_params: dict, latent: Latent, token: jax.Array, prev_action: jax.Array,
-        is_first: jax.Array, key: jax.Array | None,
-    ) -> tuple[Latent, jax.Array]:  # fmt: skip
-        """One posterior step: (new latent, posterior probabilities). The state and the previous
-        action are zeroed where ``is_first``; ``key`` None takes the posterior's mode."""
+    def core(
+        wm_params: dict, latent: Latent, prev_action: jax.Array, is_first: jax.Array
+    ) -> jax.Array:
+        """The recurrent state h_t from (h, z)_{t-1} and a_{t-1}, both zeroed where
+        ``is_first``: what the step knows before its observation."""
         keep = (1.0 - is_first)[..., None]
-        deter = wm.apply(wm_params, latent.deter * keep, latent.stoch * keep[..., None],
-                         prev_action * keep, method=WorldModel.core)  # fmt: skip
+        return wm.apply(wm_params, latent.deter * keep, latent.stoch * keep[..., None],
+                        prev_action * keep, method=WorldModel.core)  # fmt: skip
+
+    def posterior(
+        wm_params: dict, deter: jax.Array, token: jax.Array, key: jax.Array | None
+    ) -> tuple[Latent, jax.Array]:
+        """(latent, posterior probabilities) at h_t given the observation's token; ``key`` None
+        takes the posterior's mode."""
         post = probs(wm.apply(wm_params, deter, token, method=WorldModel.posterior))
         if key is None:
             stoch = jax.nn.one_hot(jnp.argmax(post, -1), c.classes)
         else:
             stoch = dist.sample_onehot(key, post)
         return Latent(deter, stoch), post
+
+    def observe_step(
+        wm_params: dict, latent: Latent, token: jax.Array, prev_action: jax.Array,
+        is_first: jax.Array, key: jax.Array | None,
+    ) -> tuple[Latent, jax.Array]:  # fmt: skip
+        """One posterior step: (new latent, posterior probabilities) (``core``, ``posterior``)."""
+        return posterior(wm_params, core(wm_params, latent, prev_action, is_first), token, key)
 
     def observe(
         wm_params: dict, latent: Latent, obs: jax.Array, prev_action: jax.Array,
@@ -335,10 +349,40 @@ def make_agent(
                               method=WorldModel.posterior))  # fmt: skip
         return control(params["actor"], feature(latent.deter, post))
 
+    def policy(params: dict, stochastic: bool) -> acting.RecurrentPolicy:
+        """The acting policy of ``params`` (``{"world_model", "actor"}``, a policy snapshot's):
+        memory (latent, previous action, is_first), reset to the initial latent at an episode's
+        start. Deterministic: the posterior's mode and tanh(mean); stochastic: a posterior sample
+        and the actor's clipped sample, from keys folded out of the step's key (the same in
+        ``act`` and ``remember``, so the remembered latent is the one that acted). The control
+        law probed is ``observation_control`` at the step's h_t."""
+        wm_params = params["world_model"]
+
+        def latent_after(memory, obs, key):
+            latent, prev_action, first = memory
+            k_post = jax.random.fold_in(key, 0) if stochastic else None
+            return observe(wm_params, latent, obs, prev_action, first, k_post)
+
+        def at(memory) -> acting.Policy:
+            latent, prev_action, first = memory
+            h = Latent(core(wm_params, latent, prev_action, first), latent.stoch)
+
+            def act_fn(obs, key):
+                k_action = jax.random.fold_in(key, 1) if stochastic else None
+                return act(params["actor"], latent_after(memory, obs, key), k_action)
+
+            return acting.Policy(act=act_fn, control=lambda o: observation_control(params, h, o))
+
+        def remember(memory, obs, action, key):
+            return latent_after(memory, obs, key), action, jnp.zeros(())
+
+        memory = (initial_latent(()), jnp.zeros((action_size,)), jnp.ones(()))
+        return acting.RecurrentPolicy(memory=memory, at=at, remember=remember)
+
     return DreamerAgent(
         config=c, world_model=wm, actor=actor, critic=critic, init=init, update=update,
         initial_latent=initial_latent, observe_step=observe_step, observe=observe, act=act,
         control=control,
         observation_control=observation_control, world_model_loss=world_model_loss,
-        imagine=imagine, lambda_returns=lambda_returns,
+        imagine=imagine, lambda_returns=lambda_returns, policy=policy,
     )  # fmt: skip

@@ -15,9 +15,10 @@ treat it as any algorithm's). One iteration, for all ``num_envs`` environments a
    per iteration (train ratio = replayed steps per env step = updates x B x T / env steps).
 
 Warm-up and the update schedule are ``lax.cond``s on the unbatched step counter; resets run under
-a ``lax.cond`` only when some episode ended. Evaluation runs deterministic episodes (posterior
-mode, tanh(mean)) and writes the metrics of every algorithm, the feedback norm with respect to the
-observation (``DreamerAgent.observation_control``).
+a ``lax.cond`` only when some episode ended. Evaluation runs deterministic episodes of the agent's
+recurrent policy (``DreamerAgent.policy``: posterior mode, tanh(mean)) through the evaluator of
+every algorithm, the feedback norm with respect to the observation
+(``DreamerAgent.observation_control``).
 """
 
 from __future__ import annotations
@@ -33,8 +34,7 @@ import minatt_jax.envs as envs
 from minatt_jax import acting
 from minatt_jax.config import TrainConfig
 from minatt_jax.dreamer.agent import AgentState, Batch, DreamerAgent, Latent, make_agent
-from minatt_jax.dreamer.networks import feature
-from minatt_jax.evaluation import EvalResult
+from minatt_jax.evaluation import EvalResult, make_evaluator
 
 
 @struct.dataclass
@@ -79,6 +79,34 @@ class SequenceReplay:
         take = lambda buf: buf[env[:, None], index]  # noqa: E731
         return Batch(take(self.obs), take(self.prev_action), take(self.reward),
                      take(self.is_first), take(self.cont))  # fmt: skip
+
+
+def episode_sequences(traj: acting.Trajectory) -> tuple[Batch, jax.Array]:
+    """Episodes (episodes, T, ...) from ``acting.unroll`` as replay steps in the replay's
+    convention (obs_t, the action before it, the reward on arriving at it, is_first, 1 -
+    terminal on arriving), with each episode's alive length."""
+    zeros = jnp.zeros_like(traj.reward[:, :1])
+    shift = lambda x, first: jnp.concatenate([first, x[:, :-1]], 1)  # noqa: E731
+    batch = Batch(
+        obs=traj.obs, prev_action=shift(traj.action, jnp.zeros_like(traj.action[:, :1])),
+        reward=shift(traj.reward, zeros), is_first=jnp.zeros_like(traj.reward).at[:, 0].set(1.0),
+        cont=shift(1.0 - traj.done, zeros + 1),
+    )  # fmt: skip
+    return batch, jnp.sum(traj.alive, -1).astype(jnp.int32)
+
+
+def sample_episode_sequences(
+    episodes: Batch, lengths: jax.Array, key: jax.Array, batch_size: int, length: int
+) -> Batch:
+    """``batch_size`` windows of ``length`` steps from the episodes' alive prefixes, uniform
+    over episodes and start positions (an episode shorter than ``length`` gives its first
+    ``length`` steps, those after its end included)."""
+    k_episode, k_start = jax.random.split(key)
+    which = jax.random.randint(k_episode, (batch_size,), 0, lengths.shape[0])
+    last_start = jnp.maximum(lengths[which] - length, 0)
+    start = jax.random.randint(k_start, (batch_size,), 0, last_start + 1)
+    index = start[:, None] + jnp.arange(length)
+    return jax.tree.map(lambda x: x[which[:, None], index], episodes)
 
 
 @struct.dataclass
@@ -254,38 +282,11 @@ def make_dreamer_train(config: TrainConfig) -> Any:
     def train_chunk(ts: DreamerTrainState) -> tuple[DreamerTrainState, dict]:
         return run_chunk(ts, ts.env_steps)
 
+    evaluator = make_evaluator(env, lambda params, _: agent.policy(params, False),
+                               config.max_episode_steps, config.eval_episodes)  # fmt: skip
+
     def evaluate(ts: DreamerTrainState, key: jax.Array, tasks: envs.Task) -> EvalResult:
-        return evaluator(ts.agent.params, key, tasks)
-
-    def episode(params: dict, key: jax.Array, task: envs.Task):
-        wm_params = params["world_model"]
-
-        def body(carry, _):
-            state, latent, prev_action, first, alive = carry
-            latent = agent.observe(wm_params, latent, state.obs, prev_action, first, None)
-            action = agent.control(params["actor"], feature(latent.deter, latent.stoch))
-            jac = jax.jacfwd(lambda o: agent.observation_control(params, latent, o))(state.obs)
-            nxt = env.step(state, action)
-            out = {"obs": state.obs, "policy_obs": state.obs, "action": action,
-                   "reward": nxt.reward, "next_obs": nxt.obs, "done": nxt.done, "alive": alive,
-                   "env_metrics": nxt.metrics, "feedback": jnp.sum(jac**2)}  # fmt: skip
-            return (nxt, latent, action, jnp.zeros(()), alive * (1.0 - nxt.done)), out
-
-        start = (env.reset(key, task), agent.initial_latent(()), jnp.zeros((act_size,)),
-                 jnp.ones(()), jnp.ones(()))  # fmt: skip
-        _, out = jax.lax.scan(body, start, None, length=config.max_episode_steps)
-        traj = acting.Trajectory(**out)
-        return acting.episode_metrics(traj, env.dt), traj.action, traj.alive
-
-    @jax.jit
-    def evaluator(params: dict, key: jax.Array, task_set_: envs.Task) -> EvalResult:
-        k = envs.num_tasks(task_set_)
-        count = config.eval_episodes
-        tasks = jax.tree.map(lambda x: x[jnp.arange(count) % k], task_set_)
-        metrics, actions, alive = jax.vmap(episode, in_axes=(None, 0, 0))(
-            params, jax.random.split(key, count), tasks
-        )
-        return EvalResult(metrics, actions, alive)
+        return evaluator(ts.policy_items()[0], {}, key, tasks)
 
     return Trainer(
         config=config, env=env, sac=None, task_set=task_set, init=jax.jit(init),
