@@ -242,20 +242,45 @@ def test_recurrent_policy_unroll_matches_a_manual_filter(agent):
     assert float(jnp.std(traj.action[:, 0])) > 0  # the memory and the input change the action
 
 
+def _initial_run(run_dir: str, evaluate: bool, **overrides) -> None:
+    """A DreamerV3 run directory at its initial state, as the runner writes one (config, metrics
+    record, policy snapshot, checkpoint) without compiling the training program: the tools that
+    read trained runs read nothing else. ``evaluate``: the record holds a real evaluation (the
+    profiles of ``analyze`` read it)."""
+    import os
+
+    from minatt_jax import runner
+    from minatt_jax.config import PRESETS, resolve, with_overrides
+    from minatt_jax.evaluation import summarize
+    from minatt_jax.training import make_train
+
+    config = resolve(with_overrides(PRESETS["smoke"], env="cheetah_run", algo="dreamer",
+                                    **overrides))  # fmt: skip
+    trainer = make_train(config)
+    state = trainer.init(jax.random.PRNGKey(config.seed))
+    record = {"step": 300}
+    if evaluate:
+        result = trainer.evaluate(state, jax.random.PRNGKey(1), trainer.task_set)
+        record.update(summarize(jax.device_get(result), trainer.env.dt))
+    os.makedirs(run_dir)
+    runner.write_json_atomic(os.path.join(run_dir, "config.json"), config.to_dict())
+    runner.write_step(run_dir, 300, state, record, None)
+
+
+SMALL_RUN = {"physics": "fast", "max_episode_steps": 60, "ma_alpha": 0.05}
+
+
 @pytest.mark.slow
-def test_trained_run_evaluates_meta_tests_analyzes_and_refuses_export(tmp_path, capsys):
-    """A DreamerV3 run goes through the tools every algorithm's runs go through: ``evaluate``,
-    ``meta-test`` (its adaptation step changes the policy), ``analyze``; ``export`` (feedforward
-    actors for numpy) refuses it in one line."""
+def test_dreamer_run_evaluates_meta_tests_and_refuses_export(tmp_path, capsys):
+    """A DreamerV3 run goes through the tools every algorithm's runs go through: ``evaluate``
+    and ``meta-test`` (its adaptation step changes the policy); ``export`` (feedforward actors
+    for numpy) refuses it in one line. (Training: the extended CLI test; analyze: below.)"""
     import json
 
     from conftest import run_cli
 
     run = str(tmp_path / "run")
-    train = ["train", "--env", "cheetah_run", "--algo", "dreamer", "--preset", "smoke",
-             "--steps", "300", "--set", "physics=fast", "--set", "max_episode_steps=60",
-             "--alpha", "0.05", "--out", run]  # fmt: skip
-    assert run_cli(train, capsys)[0] == 0
+    _initial_run(run, False, **SMALL_RUN)
     status, out = run_cli(["evaluate", run, "--episodes", "2", "--json"], capsys)
     assert status == 0, out.err
     metrics = json.loads(out.out)
@@ -270,7 +295,21 @@ def test_trained_run_evaluates_meta_tests_analyzes_and_refuses_export(tmp_path, 
     for row in result["tasks"]:
         assert len(row["feedback_norm_curve"]) == 2
         assert row["feedback_norm_curve"][0] != row["feedback_norm_curve"][1]  # adapted
-    report = str(tmp_path / "report")
+    status, out = run_cli(["export", run, "--out", str(tmp_path / "p.npz")], capsys)
+    assert status == 2 and "recurrent" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.extended  # three more compiles of the cheetah_run unroll
+def test_dreamer_run_analyzes(tmp_path, capsys):
+    """``analyze`` on a DreamerV3 run: heatmaps, K(t) x + v(t) at the recurrent policy's memory,
+    the failure grid, tables."""
+    import json
+
+    from conftest import run_cli
+
+    run, report = str(tmp_path / "run"), str(tmp_path / "report")
+    _initial_run(run, True, **SMALL_RUN)
     analyze = ["analyze", run, "--out", report, "--episodes", "1", "--bins", "4", "--grid", "2",
                "--grid-rollouts", "1", "--grid-steps", "10"]  # fmt: skip
     status, out = run_cli(analyze, capsys)
@@ -278,5 +317,5 @@ def test_trained_run_evaluates_meta_tests_analyzes_and_refuses_export(tmp_path, 
     with open(f"{report}/failure_grid.json") as f:
         rates = np.asarray(next(iter(json.load(f)["failure_rate"].values())))
     assert rates.shape == (2, 2) and np.all((rates >= 0) & (rates <= 1))
-    status, out = run_cli(["export", run, "--out", str(tmp_path / "p.npz")], capsys)
-    assert status == 2 and "recurrent" in out.err and len(out.err.strip().splitlines()) == 1
+    with open(f"{report}/tables.json") as f:
+        assert "dreamer" in json.dumps(json.load(f))
