@@ -39,11 +39,14 @@ from minatt_jax.envs.tasks import NominalModelFields, Task, apply_task, make_tas
 
 @dataclasses.dataclass(frozen=True)
 class RewardWeights:
-    """Gym v3 reward weights (forward, control cost, healthy bonus)."""
+    """Gym reward weights (forward, control cost, healthy bonus; Humanoid's contact cost
+    ``min(contact_cost * |cfrc_ext|^2, contact_cost_max)``)."""
 
     forward: float
     ctrl_cost: float
     healthy: float
+    contact_cost: float = 0.0
+    contact_cost_max: float = float("inf")
 
 
 class LocomotionEnv(Env, abc.ABC):
@@ -149,6 +152,12 @@ class LocomotionEnv(Env, abc.ABC):
             - self.weights.ctrl_cost * terms["ctrl"]
             + self.weights.healthy * jnp.ones_like(terms["forward"])
         )
+        contact = {}
+        if self.weights.contact_cost > 0:  # static: only Humanoid pays it
+            cost = jnp.minimum(self.weights.contact_cost * terms["contact"],
+                               self.weights.contact_cost_max)  # fmt: skip
+            reward = reward - cost
+            contact = {"reward_contact": -cost}
         done = jnp.where(self.terminates, 1.0 - healthy, 0.0)
         metrics = {
             "reward_forward": self.weights.forward * terms["forward"],
@@ -156,6 +165,7 @@ class LocomotionEnv(Env, abc.ABC):
             "reward_healthy": self.weights.healthy * jnp.ones_like(terms["forward"]),
             "x_position": data.qpos[0],
             "x_velocity": terms.get("speed", terms["forward"]),
+            **contact,
         }
         info = {**state.info, "steps": state.info["steps"] + 1}
         return state.replace(

@@ -13,16 +13,19 @@ from minatt_jax.envs.mjcf import PhysicsOptions
 class Humanoid(LocomotionEnv):
     """Gym v3 Humanoid with MBPO's ``HumanoidTruncatedObs``: obs = qpos[2:] (22) and qvel (23).
 
-    Reward = 1.25 * centre-of-mass x velocity + 5 - 0.1 |a|^2; ends unless 1 < z < 2. Gym v3's
-    contact cost (5e-7 |cfrc_ext|^2) is left out: MJX does not compute ``cfrc_ext``, and under
-    MuJoCo >= 2.0 Gym v3 read it as zeros anyway, so the papers' numbers had no contact cost.
+    Reward = 1.25 * centre-of-mass x velocity + 5 - 0.1 |a|^2 - min(5e-7 |cfrc_ext|^2, 10);
+    ends unless 1 < z < 2. The contact cost is Gym's (v3 and v5): ``cfrc_ext`` after the step
+    from ``mjx.rne_postconstraint``, as Gymnasium v5 calls ``mj_rnePostConstraint`` (under
+    mujoco-py >= 2.0, Gym v2/v3 read it as zeros, so MBPO-era numbers may have had no contact
+    cost).
     """
 
     name = "humanoid"
     asset_file = "humanoid.xml"
     frame_skip = 5
     reset_noise_scale = 1e-2
-    weights = RewardWeights(forward=1.25, ctrl_cost=0.1, healthy=5.0)
+    weights = RewardWeights(forward=1.25, ctrl_cost=0.1, healthy=5.0, contact_cost=5e-7,
+                            contact_cost_max=10.0)  # fmt: skip
     projections = (("vel_root_x", "root_z"), ("right_hip_y", "left_hip_y"))
     failure_grid_ranges = ((-1.0, 2.0), (-1.0, 1.0))
     failure_qvel_indices = (0, 4)  # free joint: (vx, vy, vz, wx, wy, wz)
@@ -58,7 +61,17 @@ class Humanoid(LocomotionEnv):
             return jnp.sum(mass * data.xipos[:, 0]) / jnp.sum(mass)
 
         forward = (com_x(after) - com_x(before)) / self.dt
-        return {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
+        terms = {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
+        if self.weights.contact_cost > 0:
+            forces = mjx.rne_postconstraint(model, after)
+            # MJX 3.4+ keeps it in the backend's fields (the public attribute is deprecated).
+            cfrc_ext = getattr(forces, "_impl", forces).cfrc_ext
+            terms["contact"] = jnp.sum(jnp.square(cfrc_ext))
+        return terms
+
+    def metric_names(self) -> tuple[str, ...]:
+        extra = ("reward_contact",) if self.weights.contact_cost > 0 else ()
+        return (*super().metric_names(), *extra)
 
     def is_healthy(self, data: mjx.Data) -> jax.Array:
         z = data.qpos[2]

@@ -82,6 +82,7 @@ def test_matches_mujoco_c_engine(make_env, name):
     assert env.dt == pytest.approx(dt)
     w_fwd, w_ctrl, w_healthy = GYM_WEIGHTS[name]
     step = jax.jit(env.step)
+    contact_costs = []
     for t in range(steps):
         state = step(state, actions[t])
         x_before = _reference_forward(name, m, d)
@@ -94,5 +95,15 @@ def test_matches_mujoco_c_engine(make_env, name):
         assert float(state.metrics["reward_forward"]) == pytest.approx(w_fwd * x_velocity, abs=2e-3)
         assert float(state.metrics["reward_ctrl"]) == pytest.approx(-ctrl_cost, rel=1e-5)
         expected = w_fwd * x_velocity - ctrl_cost + w_healthy
+        if name == "humanoid":  # Gym's contact cost, as Gymnasium v5 computes cfrc_ext
+            mujoco.mj_rnePostConstraint(m, d)
+            contact = min(5e-7 * float(np.sum(d.cfrc_ext**2)), 10.0)
+            contact_costs.append(contact)
+            assert -float(state.metrics["reward_contact"]) == pytest.approx(
+                contact, rel=2e-2, abs=2e-4
+            )
+            expected -= contact
         assert float(state.reward) == pytest.approx(expected, abs=3e-3)
         assert bool(state.done) == (not _reference_healthy(name, d))
+    if name == "humanoid":
+        assert max(contact_costs) > 1e-3  # the feet press on the floor: the term is not zero
