@@ -133,6 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument("--num-envs", type=_positive_int, default=None)
     p_train.add_argument("--seed", type=_non_negative_int, default=None)
     p_train.add_argument("--normalize-obs", action="store_true", default=None)
+    p_train.add_argument("--normalize-reward", action="store_true", default=None,
+                         help="SAC batches' rewards on the return's running scale")  # fmt: skip
     p_train.add_argument("--ensemble-size", type=_positive_int, default=None, help="M members")
     p_train.add_argument("--elites", type=_positive_int, default=None, help="elites = mbmpo tasks")
     p_train.add_argument("--rollout-batch", type=_positive_int, default=None)
@@ -346,6 +348,7 @@ _TRAIN_FLAGS = {
     "caps_lambda_t": "caps.lambda_t", "caps_lambda_s": "caps.lambda_s", "noise": "noise",
     "variant": "task_set", "steps": "total_steps", "eval_every": "eval_every",
     "num_envs": "num_envs", "seed": "seed", "normalize_obs": "sac.normalize_obs",
+    "normalize_reward": "sac.normalize_reward",
     "ensemble_size": "model.ensemble_size", "elites": "model.num_elites",
     "rollout_batch": "mb.rollout_batch", "updates_per_step": "updates_per_step",
     "inner_lr": "mb.meta_inner_lr", "first_order": "mb.meta_first_order",

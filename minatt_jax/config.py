@@ -97,7 +97,15 @@ class MBConfig:
 
 @dataclasses.dataclass(frozen=True)
 class SACConfig:
-    """SAC settings (paper appendix): 256x256 ReLU, Adam 3e-4, gamma 0.99, tau 0.005."""
+    """SAC settings (paper appendix): 256x256 ReLU, Adam 3e-4, gamma 0.99, tau 0.005.
+
+    ``normalize_reward``: the paper's "rewards were normalized during training", read as the
+    common running scale of the return (as gym's ``NormalizeReward`` / baselines'
+    ``VecNormalize``): every environment keeps its discounted return G <- gamma G + r (zeroed
+    when an episode ends), the running variance of G over all steps is tracked, and the rewards
+    of every SAC batch (real, imagined, adaptation) are divided by sqrt(var + 1e-8), not
+    shifted. MA's reward placement then subtracts its penalty from the scaled reward.
+    """
 
     hidden: tuple[int, ...] = (256, 256)
     actor_lr: float = 3e-4
@@ -111,6 +119,7 @@ class SACConfig:
     log_std_min: float = -20.0
     log_std_max: float = 2.0
     normalize_obs: bool = False
+    normalize_reward: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

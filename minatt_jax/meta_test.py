@@ -129,6 +129,8 @@ def meta_test(
     if model_based:
         ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
         like["model"] = jax.eval_shape(ensemble.init, jax.random.PRNGKey(0))
+    if config.sac.normalize_reward:
+        like["data/return_stats"] = obs_norm.init_normalizer(1)
     like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
     try:
         step, parts = checkpoint.restore_items(run_dir, like, policy.step)
@@ -144,6 +146,13 @@ def meta_test(
 
     def normalize(obs):
         return obs_norm.normalize(normalizer, obs, norm_on)
+
+    return_stats = parts.get("data/return_stats")
+
+    def learned(b):
+        """A batch as the run's agent learned from it (observation and reward scales)."""
+        return b.replace(obs=normalize(b.obs), next_obs=normalize(b.next_obs),
+                         reward=obs_norm.scale_reward(return_stats, b.reward))  # fmt: skip
 
     evaluator = make_evaluator(env, kind.deterministic, max_steps, settings.episodes)
     collect = _collector(env, kind.stochastic, max_steps, settings.shots)
@@ -173,7 +182,7 @@ def meta_test(
             def one(agent, k):
                 k_batch, k_sac = jax.random.split(k)
                 b = replay.sample(buffer, k_batch, batch)
-                b = b.replace(obs=normalize(b.obs), next_obs=normalize(b.next_obs))
+                b = learned(b)
                 return sac.update(agent, b, k_sac)[0], None
 
             keys = jax.random.split(key, settings.updates_per_step)
@@ -207,8 +216,7 @@ def meta_test(
                 env.terminated, data.obs[idx], jnp.asarray(horizon), horizon, k_roll,
                 config.mb.obs_clip,
             )  # fmt: skip
-            rollouts = rollouts.replace(obs=normalize(rollouts.obs),
-                                        next_obs=normalize(rollouts.next_obs))  # fmt: skip
+            rollouts = learned(rollouts)
             if vpg:
                 supports = Trajectories(data=rollouts, alive=alive)
             else:  # one step from real states: every transition is taken

@@ -34,6 +34,14 @@ def update(norm: Normalizer, batch: jax.Array) -> Normalizer:
     return Normalizer(mean, m2 / total, total)
 
 
+def scale_reward(return_stats: Normalizer | None, reward: jax.Array) -> jax.Array:
+    """``reward / sqrt(var + EPS)`` with var the running variance of the discounted return
+    (``SACConfig.normalize_reward``); unchanged when ``return_stats`` is None (off)."""
+    if return_stats is None:
+        return reward
+    return reward / jnp.sqrt(return_stats.var[0] + EPS)
+
+
 def normalize(norm: Normalizer, obs: jax.Array, enabled: bool) -> jax.Array:
     """(obs - mean) / std, clipped to [-10, 10]; identity when ``enabled`` is False."""
     if not enabled:

@@ -59,6 +59,7 @@ class Collector:
     episode_length: jax.Array  # (num_envs,)
     episode_slot: jax.Array  # (num_envs,) mbmpo: the adapted policy acting in the episode
     ou_noise: jax.Array  # (num_envs, act_dim) OU exploration noise state
+    discounted_return: jax.Array | None = None  # (num_envs,) reward normalization; else None
 
 
 @struct.dataclass
@@ -68,6 +69,7 @@ class Data:
     real: replay.ReplayBuffer
     model: replay.ReplayBuffer | None  # per-slot buffers (slots, capacity); None for sac
     normalizer: obs_norm.Normalizer
+    return_stats: obs_norm.Normalizer | None = None  # discounted-return variance; None when off
 
 
 @struct.dataclass
@@ -214,6 +216,7 @@ def make_train(config: TrainConfig) -> Trainer:
     mb = config.mb
     n = config.num_envs
     norm_on = config.sac.normalize_obs
+    reward_norm = config.sac.normalize_reward
     batch = config.sac.batch_size
     ensemble = make_ensemble(obs_dim, act_dim, config.model) if model_based else None
     meta_step = make_meta(config, sac) if meta else None
@@ -229,8 +232,12 @@ def make_train(config: TrainConfig) -> Trainer:
     def normalize(norm: obs_norm.Normalizer, obs: jax.Array) -> jax.Array:
         return obs_norm.normalize(norm, obs, norm_on)
 
-    def normalize_batch(norm: obs_norm.Normalizer, b: Transitions) -> Transitions:
-        return b.replace(obs=normalize(norm, b.obs), next_obs=normalize(norm, b.next_obs))
+    def normalize_batch(data: Data, b: Transitions) -> Transitions:
+        """What the agent learns from: normalized observations (``normalize_obs``) and
+        rewards on the return's running scale (``normalize_reward``)."""
+        norm = data.normalizer
+        return b.replace(obs=normalize(norm, b.obs), next_obs=normalize(norm, b.next_obs),
+                         reward=obs_norm.scale_reward(data.return_stats, b.reward))  # fmt: skip
 
     def reset_envs(key: jax.Array) -> EnvState:
         return acting.reset_with_tasks(env, task_set, n, key)
@@ -260,11 +267,13 @@ def make_train(config: TrainConfig) -> Trainer:
                 episode_length=jnp.zeros((n,), jnp.int32),
                 episode_slot=jnp.zeros((n,), jnp.int32),
                 ou_noise=jnp.zeros((n, act_dim)),
+                discounted_return=jnp.zeros((n,)) if reward_norm else None,
             ),
             data=Data(
                 real=replay.init_buffer(config.buffer_size, obs_dim, act_dim),
                 model=model_buffer,
                 normalizer=obs_norm.init_normalizer(obs_dim),
+                return_stats=obs_norm.init_normalizer(1) if reward_norm else None,
             ),
             model=ensemble.init(k_model) if model_based else None,
             meta=meta_state,
@@ -316,14 +325,23 @@ def make_train(config: TrainConfig) -> Trainer:
         slot = c.episode_slot
         if meta:
             slot = jnp.where(s.ended, jax.random.randint(k_slot, (n,), 0, slots), slot)
+        disc = c.discounted_return
+        if reward_norm:  # the return G <- gamma G + r, zeroed after an episode's last step
+            disc = config.sac.gamma * disc + jnp.where(s.finite, s.transitions.reward, 0.0)
         collector = Collector(
             env_state=s.env_state,
             episode_return=s.episode_return,
             episode_length=s.episode_length,
             episode_slot=slot,
             ou_noise=jnp.where(s.ended[:, None], 0.0, ou),
+            discounted_return=disc,
         )
-        return ts.replace(collector=collector, env_steps=ts.env_steps + n), s
+        ts = ts.replace(collector=collector, env_steps=ts.env_steps + n)
+        if reward_norm:
+            stats = obs_norm.update(ts.data.return_stats, disc[:, None])
+            collector = collector.replace(discounted_return=jnp.where(s.ended, 0.0, disc))
+            ts = ts.replace(collector=collector, data=ts.data.replace(return_stats=stats))
+        return ts, s
 
     # ---- store ----------------------------------------------------------------------------
     def store(data: Data, transitions: Transitions, finite: jax.Array) -> Data:
@@ -383,7 +401,7 @@ def make_train(config: TrainConfig) -> Trainer:
 
         def slot_batch(slot, k):
             b = replay.sample_mixed(data.model, data.real, k, task_batch, task_real, slot)
-            return normalize_batch(norm, b)
+            return normalize_batch(data, b)
 
         queries = jax.vmap(slot_batch)(jnp.arange(slots), jax.random.split(k_query, slots))
         if mb.meta_inner == "vpg":
@@ -396,7 +414,7 @@ def make_train(config: TrainConfig) -> Trainer:
                 env.terminated, data.real.data.obs[idx], jnp.asarray(mb.vpg_horizon),
                 mb.vpg_horizon, k_roll, mb.obs_clip,
             )  # fmt: skip
-            return Trajectories(data=normalize_batch(norm, rollouts), alive=alive), queries
+            return Trajectories(data=normalize_batch(data, rollouts), alive=alive), queries
         supports = jax.vmap(slot_batch)(jnp.arange(slots), jax.random.split(k_support, slots))
         return supports, queries
 
@@ -409,7 +427,7 @@ def make_train(config: TrainConfig) -> Trainer:
             b = replay.sample_mixed(data.model, data.real, k_batch, batch, real_count)
         else:
             b = replay.sample(data.real, k_batch, batch)
-        b = normalize_batch(data.normalizer, b)
+        b = normalize_batch(data, b)
         if not meta:
             agent, metrics = sac.update(ts.agent, b, k_update)
             return ts.replace(agent=agent), metrics

@@ -57,6 +57,46 @@ def test_collection_options_work_for_every_algorithm(algo):
     np.testing.assert_allclose(result.actions[0, 0], u, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
+def test_reward_normalization_tracks_the_discounted_return_and_scales_batches():
+    """``sac.normalize_reward``: the running variance is that of every environment's discounted
+    return G <- gamma G + r (zeroed at episode ends), computed here from the stored transitions;
+    and an update sees rewards / std: rewards scaled by c with a std scaled by c update the
+    agent identically."""
+    config = resolve(with_overrides(
+        PRESETS["smoke"], algo="sac", sac_normalize_reward=True, num_envs=2, warmup_steps=100,
+        eval_every=200, total_steps=200,
+    ))  # fmt: skip
+    trainer = make_train(config)
+    state, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+    data = jax.device_get(state.data.real.data)
+    returns = []
+    for e in range(2):  # rows alternate between the two environments
+        obs, nxt, r = data.obs[e:200:2], data.next_obs[e:200:2], data.reward[e:200:2]
+        g = 0.0
+        for t in range(100):
+            g = config.sac.gamma * g + float(r[t])
+            returns.append(g)
+            if t + 1 < 100 and not np.array_equal(nxt[t], obs[t + 1]):  # a new episode
+                g = 0.0
+    stats = state.data.return_stats
+    assert float(stats.count) == 200
+    np.testing.assert_allclose(float(stats.var[0]), np.var(returns), rtol=1e-4)
+    assert abs(float(stats.var[0]) - 1.0) > 0.1  # a scale that changes the rewards
+
+    update = jax.jit(trainer.parts["agent_update"])
+    c = 3.0
+    scaled = state.replace(data=state.data.replace(
+        real=state.data.real.replace(data=state.data.real.data.replace(
+            reward=state.data.real.data.reward * c)),
+        return_stats=stats.replace(var=(stats.var + 1e-8) * c**2 - 1e-8),
+    ))  # fmt: skip
+    a, _ = update(state, jax.random.PRNGKey(5))
+    b, _ = update(scaled, jax.random.PRNGKey(5))
+    for x, y in zip(jax.tree.leaves(a.agent), jax.tree.leaves(b.agent), strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=2e-4, atol=1e-6)
+
+
 def _cpu_flags() -> list[str]:
     try:
         text = open("/proc/cpuinfo").read()
