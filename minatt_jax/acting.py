@@ -222,6 +222,7 @@ def collect_step(
     max_episode_steps: int,
     reset: Callable[[jax.Array], EnvState],
     key: jax.Array,
+    members_axis: str | None = None,
 ) -> CollectStep:
     """Steps every environment, ends episodes (termination or the step limit) and resets them.
 
@@ -230,6 +231,11 @@ def collect_step(
     termination sets ``terminal`` (time limits are bootstrapped). A simulator state that went
     non-finite (NaN or inf observation or reward) ends its episode and is reset; ``finite``
     marks it so the caller does not learn from it, and its return is not counted.
+
+    ``members_axis``: the name of a population's vmapped axis. There the predicate "some episode
+    ended" is taken over all members (``lax.pmax``), so it stays unbatched and the reset a real
+    branch; a batched predicate would make it a select that resets every member at every step
+    (cheetah_run's reset settles 200 physics steps).
     """
     next_state = jax.vmap(env.step)(env_state, action)
     length = episode_length + 1
@@ -239,7 +245,10 @@ def collect_step(
     transitions = Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
                               next_obs=next_state.obs, terminal=terminal)  # fmt: skip
     ep_return = episode_return + next_state.reward
-    fresh = jax.lax.cond(jnp.any(ended), reset, lambda k: next_state, key)
+    any_ended = jnp.any(ended)
+    if members_axis is not None:
+        any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
+    fresh = jax.lax.cond(any_ended, reset, lambda k: next_state, key)
     new_state = jax.tree.map(
         lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
         fresh,

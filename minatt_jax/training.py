@@ -315,13 +315,14 @@ def make_train(config: TrainConfig) -> Trainer:
         return jnp.where(warm, random_action, policy_action), ou
 
     def collect(
-        ts: TrainState, keys: tuple[jax.Array, ...], steps: jax.Array
+        ts: TrainState, keys: tuple[jax.Array, ...], steps: jax.Array, members_axis: str | None
     ) -> tuple[TrainState, acting.CollectStep]:
         k_act, k_reset, k_slot = keys
         action, ou = act(ts, k_act, steps)
         c = ts.collector
         s = acting.collect_step(env, c.env_state, action, c.episode_return, c.episode_length,
-                                config.max_episode_steps, reset_envs, k_reset)  # fmt: skip
+                                config.max_episode_steps, reset_envs, k_reset,
+                                members_axis)  # fmt: skip
         slot = c.episode_slot
         if meta:
             slot = jnp.where(s.ended, jax.random.randint(k_slot, (n,), 0, slots), slot)
@@ -467,7 +468,9 @@ def make_train(config: TrainConfig) -> Trainer:
         return ts, {**metrics, "updated": ready.astype(jnp.float32)}
 
     # ---- one iteration, one chunk ---------------------------------------------------------
-    def iteration(ts: TrainState, steps_before: jax.Array) -> tuple[TrainState, dict]:
+    def iteration(
+        ts: TrainState, steps_before: jax.Array, members_axis: str | None = None
+    ) -> tuple[TrainState, dict]:
         """One env step of every environment, storage, the model phase when due and the agent
         updates; ``steps_before`` is the (unbatched) env-step counter before the step."""
         if model_based:
@@ -476,7 +479,7 @@ def make_train(config: TrainConfig) -> Trainer:
             rng, k_act, k_reset, k_update = jax.random.split(ts.rng, 4)
             k_slot = k_model = None
         ts = ts.replace(rng=rng)
-        ts, s = collect(ts, (k_act, k_reset, k_slot), steps_before)
+        ts, s = collect(ts, (k_act, k_reset, k_slot), steps_before, members_axis)
         ts = ts.replace(data=store(ts.data, s.transitions, s.finite))
         steps = steps_before + n
         out = {}
@@ -518,7 +521,11 @@ def make_train(config: TrainConfig) -> Trainer:
     def run_chunk(ts: TrainState, start: jax.Array, members: bool) -> tuple[TrainState, dict]:
         """``iterations`` iterations from env step ``start`` (unbatched); with ``members`` the
         state has a leading population axis and each iteration is vmapped over it."""
-        step = jax.vmap(iteration, in_axes=(0, None)) if members else iteration
+        if members:  # resets stay a branch: acting.collect_step's members_axis
+            step = jax.vmap(lambda t, s: iteration(t, s, "members"), in_axes=(0, None),
+                            axis_name="members")  # fmt: skip
+        else:
+            step = iteration
 
         def body(ts, i):
             return step(ts, start + i * n)

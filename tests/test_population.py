@@ -96,10 +96,26 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
         return ensemble._replace(fit=fit)
 
     monkeypatch.setattr(train_module, "make_ensemble", counting)
+    resets = []
+    real_reset = train_module.acting.reset_with_tasks
+
+    def counting_reset(*args):
+        jax.debug.callback(lambda: resets.append(1))
+        return real_reset(*args)
+
+    monkeypatch.setattr(train_module.acting, "reset_with_tasks", counting_reset)
     members = population.expand(with_overrides(ONE_CHUNK, algo="mbpo"), [0, 1, 2], [])
     program = population.Program(members)
-    _, metrics = program.chunk(program.init())
+    state = program.init()
     jax.effects_barrier()
+    resets.clear()  # the initial reset
+    _, metrics = program.chunk(state)
+    jax.effects_barrier()
+    # Resets run only at steps where some member's episode ended (the predicate is taken over
+    # the members: acting.collect_step's members_axis), at most once per ended episode; as a
+    # select under vmap they would run at all 300 steps.
+    ended = int(np.sum(metrics["train_episodes"]) + np.sum(metrics["env_non_finite_resets"]))
+    assert 1 <= len(resets) <= ended < 300
     # Warm-up ends at 200, refits every 100 steps: at 200 and 300, each time once for all three
     # members together (the callback takes no per-member argument, so vmap calls it once per
     # execution of the branch). Had the schedule's cond become a select under vmap, the fit
