@@ -1,0 +1,157 @@
+"""Which reading of the paper's MA? Placement x reward normalization x alpha, seeds as populations.
+
+    python experiments/reading_study.py [--scale smoke|cpu|paper] [--envs hopper halfcheetah]
+        [--algo mbmpo] [--seeds 0-4] [--alphas 0.01 0.05 1 5]
+        [--placements actor_loss reward entropy] [--runs runs/reading_study]
+
+The paper puts the MA penalty in three places (added to the reward, to the policy loss, inside
+the SAC objective beside the entropy) and says rewards were normalized. Arms: every placement x
+reward normalization (off / on, ``sac.normalize_reward``) x alpha, against the alpha = 0 baseline
+of the same normalization, on every environment, every arm with all seeds. All of it is one
+population (``population.train_population``: a compiled program per environment, placement and
+normalization, its seeds and alphas vmapped in it), so running the command again resumes it.
+
+Per arm (the final deterministic evaluation of each seed): return, feedback, feedforward and
+energy, mean +- std with 95% bootstrap intervals, and the difference from the baseline with its
+interval (``minatt_jax.stats``). An arm goes the **paper's direction** when feedback and energy
+are lower (intervals below zero) and the return is not lower (its interval reaches zero or
+above); with fewer than 5 seeds in an arm or its baseline there is no verdict. Writes
+``experiments/results/reading_study_<scale>.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+from typing import Any
+
+import jax
+
+from minatt_jax import population, runner, stats
+from minatt_jax.config import PRESETS, resolve, with_overrides
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
+SWEPT = ["env", "ma.placement", "sac.normalize_reward", "ma.alpha"]
+MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values is not a test)
+
+
+def members(args: argparse.Namespace) -> list[Any]:
+    """Every (environment, normalization, placement, alpha, seed); alpha 0 once per
+    environment and normalization (no penalty: the placement does not matter)."""
+    out = []
+    for env in args.envs:
+        for norm in (False, True):
+            arms = [("actor_loss", 0.0)]
+            arms += [(p, a) for p in args.placements for a in args.alphas if a > 0]
+            for placement, alpha in arms:
+                for seed in population.parse_seeds(args.seeds):
+                    out.append(resolve(with_overrides(
+                        PRESETS[args.scale], env=env, algo=args.algo, seed=seed,
+                        ma_alpha=alpha, ma_placement=placement, sac_normalize_reward=norm,
+                    )))  # fmt: skip
+    return out
+
+
+def final_values(run_dir: str) -> dict[str, float] | None:
+    """The last evaluation record's metrics (None before the first evaluation)."""
+    records = runner.read_metrics(run_dir)
+    if not records:
+        return None
+    return {"step": records[-1]["step"], **{m: records[-1][m] for m in METRICS}}
+
+
+def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
+    """One row per arm: statistics over seeds and the difference from the baseline."""
+    arms: dict[tuple, list[dict[str, float]]] = {}
+    for c in configs:
+        values = final_values(os.path.join(out_dir, population.member_name(c, SWEPT)))
+        if values is not None:
+            key = (c.env, c.sac.normalize_reward, c.ma.placement, c.ma.alpha)
+            arms.setdefault(key, []).append(values)
+    rows = []
+    for (env, norm, placement, alpha), seeds in sorted(arms.items()):
+        base = arms.get((env, norm, "actor_loss", 0.0), [])
+        row: dict[str, Any] = {"env": env, "normalize_reward": norm, "placement": placement,
+                               "alpha": alpha, "seeds": len(seeds),
+                               "step": min(s["step"] for s in seeds)}  # fmt: skip
+        for m in METRICS:
+            values = [s[m] for s in seeds]
+            row[m] = stats.summary(values)
+            if alpha > 0 and base:
+                ci = stats.bootstrap_diff_ci(values, [b[m] for b in base])
+                row[m]["diff_ci"] = ci
+                row[m]["vs_baseline"] = stats.direction(ci)
+        if alpha > 0 and min(len(seeds), len(base)) < MIN_SEEDS:
+            row["paper_direction"] = None  # intervals from so few seeds say little
+        elif alpha > 0 and base:
+            row["paper_direction"] = (
+                row["feedback_norm"]["vs_baseline"] == "lower"
+                and row["energy"]["vs_baseline"] == "lower"
+                and row["return"]["vs_baseline"] != "lower"
+            )
+        rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]], header: str) -> str:
+    def cell(s: dict[str, float]) -> str:
+        text = f"{s['mean']:.4g} +- {s['std']:.2g} [{s['ci_low']:.4g}, {s['ci_high']:.4g}]"
+        return text + (f" ({s['vs_baseline']})" if "vs_baseline" in s else "")
+
+    lines = [header, "", "| env | reward norm | placement | alpha | seeds | step | "
+             + " | ".join(METRICS) + " | paper's direction |",
+             "|---" * (len(METRICS) + 7) + "|"]  # fmt: skip
+    for r in rows:
+        verdict = {True: "yes", False: "no", None: f"(< {MIN_SEEDS} seeds)"}.get(
+            r.get("paper_direction", "baseline"), "baseline"
+        )
+        lines.append(
+            f"| {r['env']} | {'on' if r['normalize_reward'] else 'off'} | {r['placement']} | "
+            f"{r['alpha']:g} | {r['seeds']} | {r['step']} | "
+            + " | ".join(cell(r[m]) for m in METRICS)
+            + f" | {verdict} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
+    parser.add_argument("--envs", nargs="+", default=["hopper", "halfcheetah"])
+    parser.add_argument("--algo", default="mbmpo")
+    parser.add_argument("--seeds", default="0-4")
+    parser.add_argument("--alphas", type=float, nargs="+", default=[0.01, 0.05, 1.0, 5.0])
+    parser.add_argument("--placements", nargs="+", default=["actor_loss", "reward", "entropy"])
+    parser.add_argument("--runs", default="runs/reading_study")
+    parser.add_argument("--analyse-only", action="store_true",
+                        help="tabulate what the runs hold now, without training")  # fmt: skip
+    args = parser.parse_args()
+    configs = members(args)
+    out_dir = os.path.join(args.runs, args.scale)
+    if not args.analyse_only:
+        resume = os.path.exists(os.path.join(out_dir, "population.json"))
+        population.train_population(configs, out_dir, SWEPT, resume=resume)
+    rows = analyse(configs, out_dir)
+    device = jax.devices()[0]
+    command = ("python experiments/reading_study.py --scale "
+               f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "
+               f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
+               f"--placements {' '.join(args.placements)}")  # fmt: skip
+    result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
+              "date": datetime.date.today().isoformat(), "arms": rows}  # fmt: skip
+    os.makedirs(RESULTS, exist_ok=True)
+    name = f"reading_study_{args.scale}"
+    runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
+    header = (f"# Reading study ({args.scale} scale)\n\n`{command}` on {result['device']}. "
+              "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "
+              "interval of the mean] (direction against alpha = 0 with the same reward "
+              "normalization, when its interval excludes zero).")  # fmt: skip
+    text = markdown(rows, header)
+    runner.write_text_atomic(os.path.join(RESULTS, f"{name}.md"), text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
