@@ -153,7 +153,7 @@ def unroll(
             "env_metrics": nxt.metrics,
         }
         if probe_gain:
-            out["gain"] = jax.jacfwd(step_policy.control)(x)
+            out["gain"] = gain_at(step_policy.control, x)
         if probe_feedback:
             out["feedback"] = (jnp.sum(jnp.square(out["gain"])) if probe_gain
                                else feedback_at(step_policy.control, x))  # fmt: skip
@@ -164,6 +164,11 @@ def unroll(
     start = (state, jnp.ones((), jnp.float32), memory)
     _, out = jax.lax.scan(body, start, keys, length=steps)
     return Trajectory(**out)
+
+
+def gain_at(u: Callable[[jax.Array], jax.Array], x: jax.Array) -> jax.Array:
+    """du/dx (act_dim, x_dim) at one policy input x, exact (``min_attention.control_jacobian``)."""
+    return ma.control_jacobian(lambda _, y: u(y), None, x[None])[0]
 
 
 def feedback_at(u: Callable[[jax.Array], jax.Array], x: jax.Array) -> jax.Array:
