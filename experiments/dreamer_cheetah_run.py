@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--runs", default="runs/dreamer_cheetah_run")
     parser.add_argument("--set", action="append", default=[], dest="overrides")
+    parser.add_argument("--collect-only", action="store_true",
+                        help="tabulate the runs as they stand, without training")  # fmt: skip
     args = parser.parse_args()
     rows = []
     for alpha in args.alphas:
@@ -59,7 +61,8 @@ def main() -> None:
             run_dir = os.path.join(args.runs, f"{args.preset}_alpha{alpha:g}_seed{seed}")
             os.makedirs(run_dir, exist_ok=True)
             resume = os.path.exists(os.path.join(run_dir, "config.json"))
-            runner.train(config, run_dir, resume=resume)
+            if not args.collect_only:
+                runner.train(config, run_dir, resume=resume)
             curve = runner.read_metrics(run_dir)
             keep = ("step", "return", "return_std", "feedback_norm", "feedforward_norm",
                     "energy", "wm_loss", "train_episode_return", "updates_per_s",
