@@ -49,6 +49,29 @@ def bootstrap_diff_ci(
     return float(np.percentile(d, tail)), float(np.percentile(d, 100 - tail))
 
 
+def bootstrap_std_ratio_ci(
+    a: Sequence[float],
+    b: Sequence[float],
+    level: float = 0.95,
+    resamples: int = RESAMPLES,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """The ``level`` percentile-bootstrap interval of std(a) / std(b) over seeds (the paper's
+    "reduction in variance": below 1 when a's seeds spread less). NaN for fewer than 2 values
+    in an arm; resamples where b's spread is zero are dropped."""
+    x, y = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if x.size < 2 or y.size < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    sx = x[rng.integers(0, x.size, (resamples, x.size))].std(1)
+    sy = y[rng.integers(0, y.size, (resamples, y.size))].std(1)
+    ratio = sx[sy > 0] / sy[sy > 0]
+    if ratio.size == 0:
+        return float("nan"), float("nan")
+    tail = 100 * (1 - level) / 2
+    return float(np.percentile(ratio, tail)), float(np.percentile(ratio, 100 - tail))
+
+
 def summary(values: Sequence[float]) -> dict[str, float]:
     """mean, std (over seeds, ddof 0), n and the 95% bootstrap interval of the mean."""
     x = np.asarray(values, np.float64)

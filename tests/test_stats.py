@@ -27,3 +27,13 @@ def test_difference_interval_and_direction():
     assert stats.direction(same) == "unresolved"
     s = stats.summary([1.0, 2.0, 3.0])
     assert s["mean"] == 2.0 and s["n"] == 3 and s["ci_low"] >= 1.0 and s["ci_high"] <= 3.0
+
+
+def test_std_ratio_interval_separates_a_narrow_arm_from_a_wide_one():
+    rng = np.random.default_rng(3)
+    narrow, wide = rng.normal(0, 1, 40), rng.normal(0, 10, 40)
+    lo, hi = stats.bootstrap_std_ratio_ci(narrow, wide)
+    assert lo < 0.1 < hi < 0.2  # the true ratio is 0.1
+    lo, hi = stats.bootstrap_std_ratio_ci(wide, rng.normal(5, 10, 40))
+    assert lo < 1 < hi  # same spread: the interval holds 1
+    assert np.isnan(stats.bootstrap_std_ratio_ci([1.0], [1.0, 2.0])[0])

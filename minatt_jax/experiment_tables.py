@@ -1,0 +1,109 @@
+"""Shared pieces of the paper's experiment tables: stages, per-arm seed statistics, cells.
+
+The experiments under ``experiments/`` (reading study, meta-training and meta-testing tables,
+ablation, ensemble size) read their members' evaluation records at the paper's stages and
+summarize each arm over seeds the same way: mean +- std (ddof 0, as the paper's +- values)
+with the 95% bootstrap interval of the mean, and the difference from a baseline arm with its
+interval (``minatt_jax.stats``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from minatt_jax import paper_numbers, runner, stats
+
+MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values says little)
+
+
+def stages(total_steps: int, eval_every: int) -> list[int]:
+    """The paper's stages (10K / 100K / 200K) that a run of ``total_steps`` reaches, rounded up
+    to the evaluation grid, plus its last evaluation when that is not one of them."""
+
+    def on_grid(s: int) -> int:
+        return -(-s // eval_every) * eval_every
+
+    last = on_grid(total_steps)
+    out = sorted({on_grid(s) for s in paper_numbers.STAGES if on_grid(s) <= last} | {last})
+    return out
+
+
+def record_at(run_dir: str, step: int) -> dict[str, Any] | None:
+    """The evaluation record of ``run_dir`` at ``step`` (None when the run has not reached it)."""
+    if not os.path.isdir(run_dir):
+        return None
+    for record in runner.read_metrics(run_dir):
+        if record["step"] == step:
+            return record
+    return None
+
+
+def arm_summary(values: Sequence[float], baseline: Sequence[float] | None = None) -> dict:
+    """``stats.summary`` of one arm's per-seed values; with ``baseline``, the interval of the
+    difference of the means and its direction (lower / higher / unresolved)."""
+    out = stats.summary(values)
+    out["values"] = [float(v) for v in values]
+    if baseline is not None and len(values) and len(baseline):
+        ci = stats.bootstrap_diff_ci(values, baseline)
+        out["diff_ci"] = ci
+        out["vs_baseline"] = stats.direction(ci)
+    return out
+
+
+def cell(s: dict[str, Any] | None, digits: int = 4) -> str:
+    """'mean +- std [lo, hi] (n)' for a markdown table ('-' for nothing)."""
+    if not s or not s.get("n"):
+        return "-"
+    text = (f"{s['mean']:.{digits}g} +- {s['std']:.2g} [{s['ci_low']:.{digits}g}, "
+            f"{s['ci_high']:.{digits}g}] n={s['n']}")  # fmt: skip
+    return text + (f" ({s['vs_baseline']})" if "vs_baseline" in s else "")
+
+
+def paper_cell(number: tuple[float, float] | None) -> str:
+    """The paper's 'mean +- std' ('-' where it reports none)."""
+    return "-" if number is None else f"{number[0]:g} +- {number[1]:g}"
+
+
+def stage_label(step: int) -> str:
+    return f"{step // 1000}K" if step % 1000 == 0 else str(step)
+
+
+def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None,
+                   variants: list[str]) -> dict[str, Any]:  # fmt: skip
+    """Meta-test statistics of one arm from ``per_seed`` lists of ``meta_test.meta_test``
+    results (one per variant): per variant and averaged over variants, before and after
+    adaptation and their change, over the seeds that have every variant (against
+    ``baseline``'s seeds where given), and the mean adaptation curve of the return."""
+    complete = [tests for tests in per_seed if len(tests) == len(variants)]
+    base = [t for t in (baseline or []) if len(t) == len(variants)]
+    rows: dict[str, Any] = {"seeds": len(complete)}
+    for name in [*variants, "average"]:
+
+        def chosen(tests: list[dict], name: str = name) -> list[dict]:
+            return tests if name == "average" else [t for t in tests if t["variant"] == name]
+
+        def pick(tests: list[dict], when: str, m: str) -> float:
+            return float(np.mean([t["mean_over_tasks"][m][when] for t in chosen(tests)]))
+
+        row: dict[str, Any] = {}
+        for m in paper_numbers.METRICS:
+            for when in ("before", "after"):
+                row[f"{m}_{when}"] = arm_summary(
+                    [pick(t, when, m) for t in complete],
+                    [pick(t, when, m) for t in base] if baseline is not None else None,
+                )
+            row[f"{m}_change"] = arm_summary(
+                [pick(t, "after", m) - pick(t, "before", m) for t in complete]
+            )
+        if complete:
+            # per seed: the mean over task sets of each set's mean curve over its tasks
+            curves = [np.mean([np.mean([task["return_curve"] for task in t["tasks"]], 0)
+                               for t in chosen(tests)], 0) for tests in complete]  # fmt: skip
+            row["return_curve_mean"] = np.mean(curves, 0).tolist()
+            row["return_curve_std"] = np.std(curves, 0).tolist()
+        rows[name] = row
+    return rows

@@ -1,0 +1,54 @@
+"""The paper's numbers as data, the experiment tables' stages and arm statistics."""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+
+import pytest
+
+from minatt_jax import experiment_tables as xt
+from minatt_jax import paper_numbers
+
+PAPER = glob.glob(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "paper", "*.tex"))
+
+
+@pytest.mark.skipif(not PAPER, reason="the paper's source is not beside this checkout")
+def test_every_number_is_a_mean_pm_std_pair_of_the_paper() -> None:
+    text = open(PAPER[0]).read()
+    pairs = {(float(m), float(s)) for m, s in
+             re.findall(r"(-?\d+(?:\.\d+)?)\s*\$\\pm\$\s*(\d+(?:\.\d+)?)", text)}  # fmt: skip
+    rows = list(paper_numbers.TABLES.values()) + list(paper_numbers.ABLATION.values())
+    missing = [v for row in rows for v in row.values() if v not in pairs]
+    assert not missing, missing
+    assert len(paper_numbers.TABLES) == 60  # HalfCheetah 24, three agents x 12
+
+
+def test_the_papers_halfcheetah_percentages_follow_from_its_table() -> None:
+    """The text: alpha = 1 gives 45% more reward, 28% less feedback and 15% less energy."""
+    base = paper_numbers.reported("halfcheetah", "meta_training", 200_000, "mbmpo")
+    ma = paper_numbers.reported("halfcheetah", "meta_training", 200_000, "ma", 1.0)
+    assert round(100 * (ma["return"][0] / base["return"][0] - 1)) == 45
+    assert round(100 * (1 - ma["feedback_norm"][0] / base["feedback_norm"][0])) == 28
+    assert round(100 * (1 - ma["energy"][0] / base["energy"][0])) == 15
+    assert paper_numbers.reported("hopper", "meta_training", 200_000, "ma", 0.05) is None
+
+
+@pytest.mark.parametrize(
+    "total, every, expected",
+    [(600, 300, [600]), (50_000, 5_000, [10_000, 50_000]), (55_000, 10_000, [10_000, 60_000]),
+     (200_000, 10_000, [10_000, 100_000, 200_000]), (8_000, 5_000, [10_000])],
+)  # fmt: skip
+def test_stages_are_the_papers_reached_on_the_evaluation_grid(total, every, expected) -> None:
+    assert xt.stages(total, every) == expected
+
+
+def test_arm_summary_gives_the_direction_only_when_the_interval_excludes_zero() -> None:
+    lower = xt.arm_summary([1.0, 1.1, 0.9, 1.0, 1.05], [5.0, 5.2, 4.9, 5.1, 5.0])
+    assert lower["vs_baseline"] == "lower" and lower["diff_ci"][1] < 0
+    assert lower["n"] == 5 and lower["ci_low"] <= 1.01 <= lower["ci_high"]
+    mixed = xt.arm_summary([1.0, 9.0, 2.0, 8.0, 5.0], [4.0, 6.0, 5.0, 5.5, 4.5])
+    assert mixed["vs_baseline"] == "unresolved"
+    assert "vs_baseline" not in xt.arm_summary([1.0, 2.0])
+    assert xt.cell(None) == "-" and "n=5" in xt.cell(lower)
