@@ -2,7 +2,7 @@
 
     python experiments/reading_study.py [--scale smoke|cpu|paper] [--envs hopper halfcheetah]
         [--algo mbmpo] [--seeds 0-4] [--alphas 0.01 0.05 1 5]
-        [--placements actor_loss reward entropy] [--runs runs/reading_study]
+        [--placements actor_loss reward entropy] [--steps N] [--runs runs/reading_study]
 
 The paper puts the MA penalty in three places (added to the reward, to the policy loss, inside
 the SAC objective beside the entropy) and says rewards were normalized. Arms: every placement x
@@ -50,6 +50,7 @@ def members(args: argparse.Namespace) -> list[Any]:
                     out.append(resolve(with_overrides(
                         PRESETS[args.scale], env=env, algo=args.algo, seed=seed,
                         ma_alpha=alpha, ma_placement=placement, sac_normalize_reward=norm,
+                        total_steps=args.steps,
                     )))  # fmt: skip
     return out
 
@@ -124,12 +125,15 @@ def main() -> None:
     parser.add_argument("--seeds", default="0-4")
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.01, 0.05, 1.0, 5.0])
     parser.add_argument("--placements", nargs="+", default=["actor_loss", "reward", "entropy"])
+    parser.add_argument("--steps", type=int, default=None,
+                        help="env steps per member (default: the scale's preset)")  # fmt: skip
     parser.add_argument("--runs", default="runs/reading_study")
     parser.add_argument("--analyse-only", action="store_true",
                         help="tabulate what the runs hold now, without training")  # fmt: skip
     args = parser.parse_args()
     configs = members(args)
-    out_dir = os.path.join(args.runs, args.scale)
+    tag = args.scale if args.steps is None else f"{args.scale}_{args.algo}_{args.steps // 1000}k"
+    out_dir = os.path.join(args.runs, tag)
     if not args.analyse_only:
         resume = os.path.exists(os.path.join(out_dir, "population.json"))
         population.train_population(configs, out_dir, SWEPT, resume=resume)
@@ -138,13 +142,14 @@ def main() -> None:
     command = ("python experiments/reading_study.py --scale "
                f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "
                f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
-               f"--placements {' '.join(args.placements)}")  # fmt: skip
+               f"--placements {' '.join(args.placements)}"
+               + (f" --steps {args.steps}" if args.steps else ""))  # fmt: skip
     result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
               "date": datetime.date.today().isoformat(), "arms": rows}  # fmt: skip
     os.makedirs(RESULTS, exist_ok=True)
-    name = f"reading_study_{args.scale}"
+    name = f"reading_study_{tag}"
     runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
-    header = (f"# Reading study ({args.scale} scale)\n\n`{command}` on {result['device']}. "
+    header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "
               "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "
               "interval of the mean] (direction against alpha = 0 with the same reward "
               "normalization, when its interval excludes zero).")  # fmt: skip

@@ -447,12 +447,10 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
             members = [runner.load_config(d) for d in dirs]
         except runner.RunError as e:
             raise UserError(str(e)) from None
-        if args.steps is not None:  # as for single runs, only the length may change on resume
+        if args.steps is not None:  # the length may change on resume (train_population)
             from minatt_jax.config import replace_fields
 
             members = [replace_fields(m, {"total_steps": args.steps}) for m in members]
-            for d, m in zip(dirs, members, strict=True):
-                runner.write_json_atomic(os.path.join(d, "config.json"), m.to_dict())
     else:
         if args.seed is not None:
             raise UserError("--seed names one run; a population takes --seeds (e.g. 0-9)")

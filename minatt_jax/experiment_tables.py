@@ -42,6 +42,43 @@ def record_at(run_dir: str, step: int) -> dict[str, Any] | None:
     return None
 
 
+def training_rows(dirs_by_arm: dict[str, list[str]], step: int,
+                  baseline: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """Per arm, the evaluation metrics at ``step`` over its seeds (the runs that reached it),
+    each arm but ``baseline`` also against ``baseline``'s seeds."""
+    values = {arm: [r for d in dirs if (r := record_at(d, step)) is not None]
+              for arm, dirs in dirs_by_arm.items()}  # fmt: skip
+    rows: dict[str, Any] = {}
+    for arm, records in values.items():
+        base = values.get(baseline) if baseline is not None and arm != baseline else None
+        rows[arm] = {m: arm_summary([r[m] for r in records], base and [r[m] for r in base])
+                     for m in paper_numbers.METRICS}  # fmt: skip
+        rows[arm]["seeds"] = len(records)
+    return rows
+
+
+def curves(dirs: list[str], metric: str = "return") -> dict[str, list[float]]:
+    """Mean and std over ``dirs`` of ``metric`` at every evaluation step all of them reached."""
+    per_run = [{r["step"]: r[metric] for r in runner.read_metrics(d)} for d in dirs
+               if os.path.isdir(d)]  # fmt: skip
+    if not per_run:
+        return {"step": [], "mean": [], "std": []}
+    steps = sorted(set.intersection(*(set(p) for p in per_run)))
+    values = np.array([[p[s] for s in steps] for p in per_run])
+    return {"step": steps, "mean": values.mean(0).tolist(), "std": values.std(0).tolist()}
+
+
+def provenance(command: str) -> dict[str, str]:
+    """The command, date and device a result was made with."""
+    import datetime
+
+    import jax
+
+    device = jax.devices()[0]
+    return {"command": command, "date": datetime.date.today().isoformat(),
+            "device": f"{device.platform} ({device.device_kind})"}  # fmt: skip
+
+
 def arm_summary(values: Sequence[float], baseline: Sequence[float] | None = None) -> dict:
     """``stats.summary`` of one arm's per-seed values; with ``baseline``, the interval of the
     difference of the means and its direction (lower / higher / unresolved)."""

@@ -286,8 +286,13 @@ def train_population(
         if rank == 0 and not os.path.exists(index_path):
             raise RunError(f"{out_dir} holds no population to resume (no population.json)")
         for i in own_members:
-            if load_config(dirs[i]).to_dict() != members[i].to_dict():
+            stored = load_config(dirs[i])
+            same_length = replace_fields(members[i], {"total_steps": stored.total_steps})
+            if same_length.to_dict() != stored.to_dict():
                 raise RunError(f"{dirs[i]} was made with other settings; see its config.json")
+        for i in own_members:  # as for single runs, only the length may change on resume
+            if load_config(dirs[i]).total_steps != members[i].total_steps:
+                write_json_atomic(os.path.join(dirs[i], "config.json"), members[i].to_dict())
     else:
         if rank == 0 and os.path.exists(index_path):
             raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
@@ -318,6 +323,27 @@ def train_population(
     except run_guard.RunLockedError as e:
         raise RunError(str(e)) from None
     return last
+
+
+def train_in_stages(
+    members: list[TrainConfig],
+    out_dir: str,
+    swept: list[str],
+    stages: list[int],
+    at_stage: Callable[[int, list[str]], None] | None = None,
+    log: Callable[[str], None] = print,
+) -> list[str]:
+    """Trains the population to each of ``stages`` env steps in turn (resuming whatever exists
+    under ``out_dir``) and calls ``at_stage(step, run_dirs)`` after each, e.g. to meta-test the
+    latest checkpoints, which are the only ones kept. Returns the members' run directories."""
+    dirs = [os.path.join(out_dir, member_name(c, swept)) for c in members]
+    for step in stages:
+        staged = [replace_fields(c, {"total_steps": step}) for c in members]
+        resume = os.path.exists(os.path.join(out_dir, "population.json"))
+        train_population(staged, out_dir, swept, resume=resume, log=log)
+        if at_stage is not None:
+            at_stage(step, dirs)
+    return dirs
 
 
 def _train_group(
@@ -410,6 +436,7 @@ __all__ = [
     "program_config",
     "share",
     "this_process",
+    "train_in_stages",
     "train_population",
     "with_data",
 ]

@@ -1,0 +1,242 @@
+"""The paper's meta-training and meta-testing tables: SAC, MB-MPO and MB-MPO + MA per agent.
+
+    python experiments/meta_training.py [--scale smoke|cpu|paper] [--steps N]
+        [--envs hopper halfcheetah walker2d humanoid] [--seeds 0-4] [--alpha 1]
+        [--placement actor_loss] [--normalize-reward] [--variants mass crippled slope]
+        [--no-meta-test] [--collect-only] [--runs runs/meta_training]
+
+Members: per environment SAC (alpha 0), MB-MPO (alpha 0) and MB-MPO + MA (``--alpha``, the
+paper's tables use 1; ``--placement``/``--normalize-reward`` pick the reading of MA), every seed,
+as one population (``population.train_population``: one compiled program per environment and
+algorithm, seeds and alphas vmapped). Training goes stage by stage: the paper's stages (10K /
+100K / 200K) that the scale reaches, and the last step. At each stage every member is
+meta-tested (``meta_test.meta_test``: 1 real episode per task, 10 adaptation steps) on each
+``--variants`` task set, since only the latest checkpoints are kept. Running the command again
+resumes training and skips meta-tests already written
+(``<member>/meta_test/<variant>_<step>.json``).
+
+Writes ``experiments/results/meta_training_<tag>.{json,md}`` and, per environment, the
+adaptation curves ``meta_testing_<tag>_<env>.png``: per stage and arm, mean +- std over seeds
+[95% bootstrap interval of the mean], MA's difference from MB-MPO (direction when its interval
+excludes zero), and the paper's numbers beside ours (``minatt_jax.paper_numbers``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+from minatt_jax import experiment_tables as xt
+from minatt_jax import meta_test, paper_numbers, plots, population, runner
+from minatt_jax.config import PRESETS, resolve, with_overrides
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+METRICS = paper_numbers.METRICS
+SWEPT = ["env", "ma.alpha"]
+ENV_NAMES = {"hopper": "Hopper", "halfcheetah": "HalfCheetah", "walker2d": "Walker2D",
+             "humanoid": "Humanoid"}  # fmt: skip
+
+
+def arms(alpha: float) -> list[tuple[str, str, float]]:
+    """(arm, algo, alpha): the paper's three columns."""
+    return [("sac", "sac", 0.0), ("mbmpo", "mbmpo", 0.0), ("ma", "mbmpo", alpha)]
+
+
+def members(args: argparse.Namespace) -> list[Any]:
+    out = []
+    for env in args.envs:
+        for _, algo, alpha in arms(args.alpha):
+            for seed in population.parse_seeds(args.seeds):
+                out.append(resolve(with_overrides(
+                    PRESETS[args.scale], env=env, algo=algo, seed=seed, ma_alpha=alpha,
+                    ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
+                    total_steps=args.steps,
+                )))  # fmt: skip
+    return out
+
+
+def meta_test_path(run_dir: str, variant: str, step: int) -> str:
+    return os.path.join(run_dir, "meta_test", f"{variant}_{step}.json")
+
+
+def meta_test_stage(step: int, dirs: list[str], variants: list[str]) -> None:
+    """Meta-tests every member at ``step`` (its latest checkpoint) on every variant, once."""
+    settings = meta_test.MetaTestConfig()
+    for d in dirs:
+        for variant in variants:
+            path = meta_test_path(d, variant, step)
+            if os.path.exists(path):
+                continue
+            result = meta_test.meta_test(d, variant, settings, log=lambda _: None)
+            if result["step"] != step:
+                raise runner.RunError(f"{d}: latest checkpoint {result['step']}, expected {step}")
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            runner.write_json_atomic(path, result)
+            before, after = (result["mean_over_tasks"]["return"][k] for k in ("before", "after"))
+            print(f"meta-test {os.path.basename(d)} {variant} @ {step}: return "
+                  f"{before:.1f} -> {after:.1f}", flush=True)  # fmt: skip
+
+
+def collect(configs: list[Any], out_dir: str, steps: list[int], alpha: float,
+            variants: list[str]) -> dict[str, Any]:  # fmt: skip
+    """Per environment, stage and arm: the meta-training and meta-testing statistics."""
+    by_arm: dict[tuple[str, str], list[str]] = {}
+    for c in configs:
+        arm = "sac" if c.algo == "sac" else ("ma" if c.ma.alpha > 0 else "mbmpo")
+        by_arm.setdefault((c.env, arm), []).append(
+            os.path.join(out_dir, population.member_name(c, SWEPT))
+        )
+    out: dict[str, Any] = {}
+    for env in dict.fromkeys(c.env for c in configs):
+        env_out: dict[str, Any] = {"meta_training": {}, "meta_testing": {}}
+        for step in steps:
+            dirs = {arm: by_arm.get((env, arm), []) for arm, _, _ in arms(alpha)}
+            train_rows, test_rows = xt.training_rows(dirs, step, baseline="mbmpo"), {}
+            tests = {arm: [[_read(p) for v in variants
+                            if os.path.exists(p := meta_test_path(d, v, step))]
+                           for d in by_arm.get((env, arm), [])]
+                     for arm, _, _ in arms(alpha)}  # fmt: skip
+            for arm, _, _ in arms(alpha):
+                test_rows[arm] = xt.meta_test_rows(tests[arm], tests["mbmpo"] if arm == "ma"
+                                                 else None, variants)  # fmt: skip
+            env_out["meta_training"][str(step)] = train_rows
+            env_out["meta_testing"][str(step)] = test_rows
+        out[env] = env_out
+    return out
+
+
+def _read(path: str) -> dict[str, Any]:
+    with open(path) as f:
+        return json.load(f)
+
+
+def markdown(result: dict[str, Any], alpha: float, variants: list[str]) -> str:
+    lines = [
+        f"# Meta-training and meta-testing tables ({result['tag']})",
+        "",
+        f"`{result['command']}` on {result['device']}, {result['date']}. Deterministic "
+        "evaluation of each member at each stage; mean +- std over seeds [95% bootstrap "
+        "interval of the mean] n=seeds; SAC and MA say (lower/higher) where the interval "
+        "of its difference from MB-MPO excludes zero. The paper's columns: mean +- std "
+        "over its seeds (energy on the paper's own scale, which differs between its "
+        "tables: compare directions; the feedforward norm's scale differs too). SAC has no "
+        "numbers in the paper (figures only).",
+    ]
+    for env, env_out in result["tables"].items():
+        title = ENV_NAMES.get(env, env)
+        lines += ["", f"## {title}: meta-training", "",
+                  "| stage | metric | SAC | MB-MPO | MB-MPO + MA | paper MB-MPO | paper MA |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for step, rows in env_out["meta_training"].items():
+            for m in METRICS:
+                ours = [xt.cell(rows[a][m]) for a in ("sac", "mbmpo", "ma")]
+                paper = [paper_numbers.reported(env, "meta_training", int(step), a, alpha)
+                         for a in ("mbmpo", "ma")]  # fmt: skip
+                cells = [xt.paper_cell(p and p[m]) for p in paper]
+                lines.append(f"| {xt.stage_label(int(step))} | {m} | " + " | ".join(ours + cells)
+                             + " |")  # fmt: skip
+        if not variants:
+            continue
+        lines += ["", f"## {title}: meta-testing (before -> after 10 adaptation steps)", "",
+                  "| stage | tasks | metric | SAC | MB-MPO | MB-MPO + MA | paper MB-MPO | "
+                  "paper MA |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for step, rows in env_out["meta_testing"].items():
+            for name in [*variants, "average"]:
+                for m in METRICS:
+                    ours = []
+                    for a in ("sac", "mbmpo", "ma"):
+                        row = rows[a].get(name, {})
+                        ours.append(f"{xt.cell(row.get(f'{m}_before'))} -> "
+                                    f"{xt.cell(row.get(f'{m}_after'))}")  # fmt: skip
+                    paper = [paper_numbers.reported(env, "meta_testing", int(step), a, alpha)
+                             for a in ("mbmpo", "ma")]  # fmt: skip
+                    cells = [xt.paper_cell(p and p[m]) for p in paper]
+                    lines.append(f"| {xt.stage_label(int(step))} | {name} | {m} | "
+                                 + " | ".join(ours + cells) + " |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def plot_adaptation(result: dict[str, Any], env: str, variants: list[str], path: str) -> None:
+    """Return over adaptation steps (mean +- std over seeds), one panel per task set."""
+    plt = plots._pyplot()
+    names = [*variants, "average"]
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
+    tests = result["tables"][env]["meta_testing"]
+    last = max(tests, key=int)
+    for ax, name in zip(axes[0], names, strict=True):
+        for arm, label in (("sac", "SAC"), ("mbmpo", "MB-MPO"), ("ma", "MB-MPO + MA")):
+            row = tests[last][arm].get(name, {})
+            if "return_curve_mean" not in row:
+                continue
+            mean, std = np.array(row["return_curve_mean"]), np.array(row["return_curve_std"])
+            x = np.arange(len(mean))
+            ax.plot(x, mean, label=label)
+            ax.fill_between(x, mean - std, mean + std, alpha=0.2)
+        ax.set_title(f"{ENV_NAMES.get(env, env)} {name} @ {xt.stage_label(int(last))}")
+        ax.set_xlabel("adaptation step")
+    axes[0][0].set_ylabel("return")
+    axes[0][0].legend()
+    plots.save_figure(fig, path)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
+    parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
+    parser.add_argument("--envs", nargs="+", default=list(ENV_NAMES))
+    parser.add_argument("--seeds", default="0-4")
+    parser.add_argument("--alpha", type=float, default=1.0)
+    parser.add_argument("--placement", default=None, help="default: the library's")
+    parser.add_argument("--normalize-reward", action="store_true", default=None)
+    parser.add_argument("--variants", nargs="*", default=["mass", "crippled", "slope"])
+    parser.add_argument("--no-meta-test", action="store_true")
+    parser.add_argument("--collect-only", action="store_true",
+                        help="tabulate what the runs hold now, without training")  # fmt: skip
+    parser.add_argument("--runs", default="runs/meta_training")
+    args = parser.parse_args()
+    variants = [] if args.no_meta_test else args.variants
+    configs = members(args)
+    total = configs[0].total_steps
+    steps = xt.stages(total, configs[0].eval_every)
+    tag = args.scale if args.steps is None else f"{args.scale}_{args.steps // 1000}k"
+    out_dir = os.path.join(args.runs, tag)
+    try:
+        if not args.collect_only:
+            at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
+            population.train_in_stages(configs, out_dir, SWEPT, steps, at_stage)
+    except runner.RunError as e:
+        raise SystemExit(f"meta_training: {e}") from None
+    command = (
+        "python experiments/meta_training.py --scale "
+        + args.scale
+        + (f" --steps {args.steps}" if args.steps else "")
+        + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
+        + (f" --placement {args.placement}" if args.placement else "")
+        + (" --normalize-reward" if args.normalize_reward else "")
+        + (f" --variants {' '.join(variants)}" if variants else " --no-meta-test")
+    )
+    result = {"tag": tag, **xt.provenance(command), "stages": steps,
+              "alpha": args.alpha, "placement": configs[-1].ma.placement,
+              "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
+              "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
+              "tables": collect(configs, out_dir, steps, args.alpha, variants)}  # fmt: skip
+    os.makedirs(RESULTS, exist_ok=True)
+    name = f"meta_training_{tag}"
+    runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
+    text = markdown(result, args.alpha, variants)
+    runner.write_text_atomic(os.path.join(RESULTS, f"{name}.md"), text)
+    if variants:
+        for env in args.envs:
+            path = os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png")
+            plot_adaptation(result, env, variants, path)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
