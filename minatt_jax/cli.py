@@ -177,6 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_meta.add_argument("--episodes", type=_positive_int, default=5, help="per evaluation")
     p_meta.add_argument("--updates-per-step", type=_positive_int, default=20, help="sac runs")
     p_meta.add_argument("--seed", type=_non_negative_int, default=0)
+    p_meta.add_argument("--inner-lr", type=_non_negative_float, default=None,
+                        help="model-based runs: the adaptation's inner step size (default: "
+                        "the run's mb.meta_inner_lr)")  # fmt: skip
     p_meta.add_argument("--out", default=None, help="directory for meta_test_<variant>.json/png")
     p_meta.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -548,7 +551,7 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
 
     settings = MetaTestConfig(
         shots=args.shots, adapt_steps=args.adapt_steps, episodes=args.episodes,
-        updates_per_step=args.updates_per_step, seed=args.seed,
+        updates_per_step=args.updates_per_step, seed=args.seed, inner_lr=args.inner_lr,
     )  # fmt: skip
     if (args.variant is None) == (not args.task):
         raise UserError("meta-test needs either --variant NAME or --task SPEC (one or more)")

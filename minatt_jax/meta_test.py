@@ -25,6 +25,8 @@ program. Returns per task and per step: return, feedback norm, feedforward norm,
 from __future__ import annotations
 
 import dataclasses
+import json
+import types
 from collections.abc import Callable
 from typing import Any
 
@@ -35,6 +37,7 @@ import numpy as np
 import minatt_jax.envs as envs
 from minatt_jax import acting, checkpoint, imagination, replay, runner
 from minatt_jax import normalizer as obs_norm
+from minatt_jax.config import replace_fields
 from minatt_jax.dynamics_ensemble import make_ensemble
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.maml import Trajectories, make_meta_step
@@ -52,6 +55,7 @@ class MetaTestConfig:
     episodes: int = 5
     updates_per_step: int = 20
     seed: int = 0
+    inner_lr: float | None = None  # model-based runs: the inner step's beta (None: the run's)
 
     def __post_init__(self) -> None:
         for name in ("shots", "episodes", "updates_per_step"):
@@ -59,6 +63,8 @@ class MetaTestConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.adapt_steps < 0:
             raise ValueError(f"adapt_steps must be >= 0, got {self.adapt_steps}")
+        if self.inner_lr is not None and not self.inner_lr >= 0:
+            raise ValueError(f"inner_lr must be >= 0, got {self.inner_lr}")
 
 
 def _collector(env, policy_of: Callable, max_steps: int, shots: int):
@@ -106,52 +112,39 @@ def _dreamer_adapt(agent_fns: Any, config: Any, settings: MetaTestConfig) -> Cal
     return adapt
 
 
-def meta_test(
-    run_dir: str,
-    variant: str,
-    settings: MetaTestConfig,
-    log: Callable[[str], None] = print,
-    task_specs: tuple[str, ...] = (),
-) -> dict[str, Any]:
-    """Meta-tests the latest checkpoint of ``run_dir`` on every task of ``variant`` (or on the
-    custom ``task_specs``, one task each)."""
-    try:
-        policy = checkpoint.load_policy(run_dir)
-        envs.check_task_set_name(variant)
-    except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
-        raise runner.RunError(str(e)) from None
-    config, env, sac, kind = policy.config, policy.env, policy.agent, policy.family
+def _distance(a: Any, b: Any) -> float:
+    """The Euclidean distance between two parameter pytrees."""
+    squares = jax.tree.map(lambda x, y: jnp.sum(jnp.square(x - y)), a, b)
+    return float(jnp.sqrt(sum(jax.tree.leaves(squares))))
+
+
+_PROGRAMS: dict[str, Any] = {}
+
+
+def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
+              settings: MetaTestConfig) -> Any:  # fmt: skip
+    """The meta-test's compiled functions (evaluate, collect, refit, adapt, policy_params) for
+    one configuration, built once per process: a run's own arrays (agent, normalizer, return
+    statistics, model) are their arguments, so meta-testing many runs of one configuration
+    (seeds, stages, task sets) compiles once. Keyed by the configuration but its seed and
+    length, and the settings but their seed."""
+    key = json.dumps([replace_fields(config, {"seed": 0, "total_steps": 1}).to_dict(),
+                      dataclasses.replace(settings, seed=0).__repr__()], sort_keys=True,
+                     default=str)  # fmt: skip
+    if key in _PROGRAMS:
+        return _PROGRAMS[key]
     model_based = config.model_based
     dreamer = config.algo == "dreamer"
-    # The agent (and the ensemble) alone: no replay or model buffers are allocated.
-    like = {"agent": jax.eval_shape(sac.init, jax.random.PRNGKey(0))}
-    ensemble = None
-    if model_based:
-        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
-        like["model"] = jax.eval_shape(ensemble.init, jax.random.PRNGKey(0))
-    if config.sac.normalize_reward:
-        like["data/return_stats"] = obs_norm.init_normalizer(1)
-    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
-    try:
-        step, parts = checkpoint.restore_items(run_dir, like, policy.step)
-    except checkpoint.CheckpointError as e:
-        raise runner.RunError(str(e)) from None
-    trained_agent, normalizer = parts["agent"], policy.normalizer
-    try:
-        tasks, labels = envs.resolve_tasks(env, variant, task_specs)
-    except envs.TaskSpecError as e:
-        raise runner.RunError(str(e)) from None
     norm_on = config.sac.normalize_obs
     max_steps = config.max_episode_steps
 
-    def normalize(obs):
+    def normalize(normalizer, obs):
         return obs_norm.normalize(normalizer, obs, norm_on)
 
-    return_stats = parts.get("data/return_stats")
-
-    def learned(b):
+    def learned(b, normalizer, return_stats):
         """A batch as the run's agent learned from it (observation and reward scales)."""
-        return b.replace(obs=normalize(b.obs), next_obs=normalize(b.next_obs),
+        return b.replace(obs=normalize(normalizer, b.obs),
+                         next_obs=normalize(normalizer, b.next_obs),
                          reward=obs_norm.scale_reward(return_stats, b.reward))  # fmt: skip
 
     evaluator = make_evaluator(env, kind.deterministic, max_steps, settings.episodes)
@@ -168,6 +161,7 @@ def meta_test(
 
     capacity = settings.shots * max_steps
     batch = config.sac.batch_size
+    refit = None
 
     def collected_buffer(data, valid):
         empty = replay.init_buffer(capacity, env.observation_size, env.action_size)
@@ -176,13 +170,13 @@ def meta_test(
     if not model_based and not dreamer:
 
         @jax.jit
-        def adapt(agent, data, valid, key):
+        def adapt(agent, data, valid, key, normalizer, return_stats):
             buffer = collected_buffer(data, valid)
 
             def one(agent, k):
                 k_batch, k_sac = jax.random.split(k)
                 b = replay.sample(buffer, k_batch, batch)
-                b = learned(b)
+                b = learned(b, normalizer, return_stats)
                 return sac.update(agent, b, k_sac)[0], None
 
             keys = jax.random.split(key, settings.updates_per_step)
@@ -205,18 +199,18 @@ def meta_test(
             return ensemble.fit(ens_state, buffer.data, buffer.size, key)[0]
 
         @jax.jit
-        def adapt(agent, ens_state, data, valid, key):
+        def adapt(agent, ens_state, data, valid, key, normalizer, return_stats):
             k_start, k_roll, k_inner = jax.random.split(key, 3)
             count = jnp.maximum(jnp.sum(valid).astype(jnp.int32), 1)
             order = jnp.argsort(valid <= 0, stable=True)
             idx = order[jax.random.randint(k_start, (slots, per_slot), 0, count)]
             rollouts, alive = imagination.imagine(
                 ensemble, ens_state, ens_state.elites,
-                lambda p, obs, k: sac.sample(p, normalize(obs), k), agent.actor_params,
+                lambda p, obs, k: sac.sample(p, normalize(normalizer, obs), k), agent.actor_params,
                 env.terminated, data.obs[idx], jnp.asarray(horizon), horizon, k_roll,
                 config.mb.obs_clip,
             )  # fmt: skip
-            rollouts = learned(rollouts)
+            rollouts = learned(rollouts, normalizer, return_stats)
             if vpg:
                 supports = Trajectories(data=rollouts, alive=alive)
             else:  # one step from real states: every transition is taken
@@ -230,6 +224,52 @@ def meta_test(
 
             return agent.replace(actor_params=inner(agent.actor_params, k_inner))
 
+    programs = types.SimpleNamespace(evaluate=evaluator, collect=collect, refit=refit,
+                                     adapt=adapt, policy_params=policy_params)  # fmt: skip
+    _PROGRAMS[key] = programs
+    return programs
+
+
+def meta_test(
+    run_dir: str,
+    variant: str,
+    settings: MetaTestConfig,
+    log: Callable[[str], None] = print,
+    task_specs: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """Meta-tests the latest checkpoint of ``run_dir`` on every task of ``variant`` (or on the
+    custom ``task_specs``, one task each)."""
+    try:
+        policy = checkpoint.load_policy(run_dir)
+        envs.check_task_set_name(variant)
+    except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
+        raise runner.RunError(str(e)) from None
+    config, env, sac, kind = policy.config, policy.env, policy.agent, policy.family
+    if settings.inner_lr is not None and config.model_based:
+        config = replace_fields(config, {"mb.meta_inner_lr": settings.inner_lr})
+    model_based = config.model_based
+    dreamer = config.algo == "dreamer"
+    # The agent (and the ensemble) alone: no replay or model buffers are allocated.
+    like = {"agent": jax.eval_shape(sac.init, jax.random.PRNGKey(0))}
+    ensemble = None
+    if model_based:
+        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
+        like["model"] = jax.eval_shape(ensemble.init, jax.random.PRNGKey(0))
+    if config.sac.normalize_reward:
+        like["data/return_stats"] = obs_norm.init_normalizer(1)
+    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
+    try:
+        step, parts = checkpoint.restore_items(run_dir, like, policy.step)
+    except checkpoint.CheckpointError as e:
+        raise runner.RunError(str(e)) from None
+    trained_agent = parts["agent"]
+    try:
+        tasks, labels = envs.resolve_tasks(env, variant, task_specs)
+    except envs.TaskSpecError as e:
+        raise runner.RunError(str(e)) from None
+    programs = _programs(config, env, sac, kind, ensemble, settings)
+    normalizer, return_stats = policy.normalizer, parts.get("data/return_stats")
+    policy_params = programs.policy_params
     key = jax.random.PRNGKey(settings.seed)
     rows = []
     for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
@@ -238,24 +278,26 @@ def meta_test(
         agent = trained_agent
 
         def evaluate(agent, i, task_set=task_set, k_task=k_task):
-            result = evaluator(policy_params(agent), normalizer,
-                               jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
+            result = programs.evaluate(policy_params(agent), normalizer,
+                                       jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
             return summarize(jax.device_get(result), env.dt)
 
-        curve = [evaluate(agent, 0)]
-        traj = collect(policy_params(agent), normalizer, jax.random.fold_in(k_task, 1), task)
+        curve, moved = [evaluate(agent, 0)], []
+        traj = programs.collect(policy_params(agent), normalizer, jax.random.fold_in(k_task, 1),
+                                task)  # fmt: skip
         data, valid = _flat(traj)
         ens_state = None
         if model_based and settings.adapt_steps > 0:
-            ens_state = refit(parts["model"], data, valid, jax.random.fold_in(k_task, 2))
+            ens_state = programs.refit(parts["model"], data, valid, jax.random.fold_in(k_task, 2))
         for i in range(1, settings.adapt_steps + 1):
             k = jax.random.fold_in(k_task, 10 + i)
             if model_based:
-                agent = adapt(agent, ens_state, data, valid, k)
+                agent = programs.adapt(agent, ens_state, data, valid, k, normalizer, return_stats)
             elif dreamer:
-                agent = adapt(agent, traj, k)
+                agent = programs.adapt(agent, traj, k)
             else:
-                agent = adapt(agent, data, valid, k)
+                agent = programs.adapt(agent, data, valid, k, normalizer, return_stats)
+            moved.append(_distance(policy_params(agent), policy_params(trained_agent)))
             curve.append(evaluate(agent, i))
         row = {
             "task": label,
@@ -263,6 +305,9 @@ def meta_test(
             "collected_transitions": int(np.sum(np.asarray(valid))),
             **{f"{m}_curve": [c[m] for c in curve] for m in REPORTED},
             **{f"{m}_std_curve": [c[f"{m}_std"] for c in curve] for m in REPORTED},
+            # || adapted policy parameters - trained ones || after each adaptation step: how
+            # far the inner steps moved the policy (a collapse shows as a jump here)
+            "policy_distance_curve": moved,
         }
         rows.append(row)
         first, last = curve[0], curve[-1]

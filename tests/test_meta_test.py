@@ -8,6 +8,7 @@ import os
 import numpy as np
 import pytest
 
+from minatt_jax import meta_test
 from minatt_jax.cli import main as _main
 
 # One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
@@ -26,13 +27,29 @@ def main(argv):
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("meta_test_runs")
     out = {}
-    for algo in ("sac", "mbmpo"):
-        run_dir = str(root / algo)
+    for name, algo, seed in (("sac", "sac", 0), ("mbmpo", "mbmpo", 0), ("sac_seed1", "sac", 1)):
+        run_dir = str(root / name)
         argv = ["train", "--env", "hopper", "--algo", algo, "--preset", "smoke", "--steps", "300",
-                "--alpha", "1", "--out", run_dir]  # fmt: skip
+                "--alpha", "1", "--seed", str(seed), "--out", run_dir]  # fmt: skip
         assert main(argv) == 0
-        out[algo] = run_dir
+        out[name] = run_dir
     return out
+
+
+def test_meta_testing_runs_of_one_configuration_compiles_once(runs):
+    """Two seeds' runs and two task sets share the compiled programs, and a run's results do
+    not depend on which run compiled them (its arrays are arguments, not constants)."""
+    settings = meta_test.MetaTestConfig(adapt_steps=2, episodes=1, updates_per_step=3)
+    meta_test._PROGRAMS.clear()
+    meta_test.meta_test(runs["sac"], "mass", settings, log=lambda _: None)
+    shared = meta_test.meta_test(runs["sac_seed1"], "crippled", settings, log=lambda _: None)
+    assert len(meta_test._PROGRAMS) == 1
+    (programs,) = meta_test._PROGRAMS.values()
+    for fn in (programs.adapt, programs.evaluate, programs.collect):
+        assert fn._cache_size() == 1
+    meta_test._PROGRAMS.clear()
+    alone = meta_test.meta_test(runs["sac_seed1"], "crippled", settings, log=lambda _: None)
+    assert shared["tasks"] == alone["tasks"]
 
 
 @pytest.mark.parametrize("algo", ["sac", "mbmpo"])
@@ -53,6 +70,7 @@ def test_meta_test_writes_curves_per_task(algo, runs, capsys):
         assert row["collected_transitions"] > 0
         # Adaptation changed the policy: the curve is not flat.
         assert row["energy_curve"][0] != row["energy_curve"][-1]
+        assert len(row["policy_distance_curve"]) == 2 and min(row["policy_distance_curve"]) > 0
     with open(os.path.join(run_dir, "meta_test_crippled.png"), "rb") as f:
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
 
@@ -79,3 +97,13 @@ def test_meta_test_missing_run_or_checkpoint_exit_2(tmp_path, runs, capsys):
         (empty / "config.json").write_text(f.read())
     assert main(["meta-test", str(empty), "--variant", "mass"]) == 2
     assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_meta_test_inner_lr_zero_leaves_the_mbmpo_policy_where_it_was(runs, tmp_path, capsys):
+    argv = ["meta-test", runs["mbmpo"], "--variant", "mass", "--adapt-steps", "2",
+            "--episodes", "1", "--inner-lr", "0", "--out", str(tmp_path), "--json"]  # fmt: skip
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["settings"]["inner_lr"] == 0
+    for row in result["tasks"]:
+        assert row["policy_distance_curve"] == [0.0, 0.0]
