@@ -19,7 +19,7 @@ from minatt_jax.envs.base import LocomotionEnv  # noqa: E402 - after the mjx not
 from minatt_jax.envs.cheetah_run import CheetahRun
 from minatt_jax.envs.halfcheetah import HalfCheetah
 from minatt_jax.envs.hopper import Hopper
-from minatt_jax.envs.humanoid import Humanoid
+from minatt_jax.envs.humanoid import Humanoid, HumanoidFull
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, MissingModelError, PhysicsOptions
 from minatt_jax.envs.task_sets import (
     TASK_FIELDS,
@@ -47,6 +47,7 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
     "halfcheetah": HalfCheetah,
     "walker2d": Walker2d,
     "humanoid": Humanoid,
+    "humanoid_376": HumanoidFull,
     "cheetah_run": CheetahRun,
 }
 ENV_NAMES = tuple(ENVIRONMENTS)
@@ -93,6 +94,7 @@ __all__ = [
     "HalfCheetah",
     "Hopper",
     "Humanoid",
+    "HumanoidFull",
     "LocomotionEnv",
     "PhysicsOptions",
     "Task",

@@ -130,7 +130,7 @@ class LocomotionEnv(Env, abc.ABC):
             data, _ = jax.lax.scan(lambda d, _: (mjx.step(model, d), None), data, None,
                                    self.settle_steps)  # fmt: skip
             data = data.replace(time=jnp.zeros_like(data.time))
-        data = mjx.forward(model, data)
+        data = self.complete(model, mjx.forward(model, data))
         zero = jnp.zeros((), jnp.float32)
         metrics = {k: zero for k in self.metric_names()}
         info: dict[str, Any] = {"task": task, "rng": rng, "steps": jnp.zeros((), jnp.int32)}
@@ -145,6 +145,7 @@ class LocomotionEnv(Env, abc.ABC):
             return mjx.step(model, data), None
 
         data, _ = jax.lax.scan(physics_step, data0.replace(ctrl=action), None, self.frame_skip)
+        data = self.complete(model, data)
         terms = self.reward_terms(model, data0, data, action)
         healthy = self.is_healthy(data)
         reward = (
@@ -202,6 +203,13 @@ class LocomotionEnv(Env, abc.ABC):
         return {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
 
     @abc.abstractmethod
+    def complete(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """``data`` with what the observation and reward read beyond ``mjx.step`` /
+        ``mjx.forward`` (Humanoid: the external contact forces); called after every step and
+        reset, and wherever a state is set by hand."""
+        del model
+        return data
+
     def observation(self, data: mjx.Data) -> jax.Array:
         """Gym v3 observation from physics data."""
 

@@ -10,6 +10,13 @@ from minatt_jax.envs.base import LocomotionEnv, RewardWeights
 from minatt_jax.envs.mjcf import PhysicsOptions
 
 
+def backend_field(data: mjx.Data, name: str) -> jax.Array:
+    """A field of ``data``, from the backend's part where MJX 3.4+ keeps it (``cfrc_ext``,
+    filled by ``Humanoid.complete``, and ``cinert``: their public attributes are deprecated)."""
+    impl = getattr(data, "_impl", None)
+    return getattr(impl, name) if hasattr(impl, name) else getattr(data, name)
+
+
 class Humanoid(LocomotionEnv):
     """Gym v3 Humanoid with MBPO's ``HumanoidTruncatedObs``: obs = qpos[2:] (22) and qvel (23).
 
@@ -63,11 +70,13 @@ class Humanoid(LocomotionEnv):
         forward = (com_x(after) - com_x(before)) / self.dt
         terms = {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
         if self.weights.contact_cost > 0:
-            forces = mjx.rne_postconstraint(model, after)
-            # MJX 3.4+ keeps it in the backend's fields (the public attribute is deprecated).
-            cfrc_ext = getattr(forces, "_impl", forces).cfrc_ext
-            terms["contact"] = jnp.sum(jnp.square(cfrc_ext))
+            terms["contact"] = jnp.sum(jnp.square(backend_field(after, "cfrc_ext")))
         return terms
+
+    def complete(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """The external contact forces ``cfrc_ext`` after the step (``mj_rnePostConstraint``),
+        which the contact cost (and the 376-dim observation) read."""
+        return mjx.rne_postconstraint(model, data)
 
     def metric_names(self) -> tuple[str, ...]:
         extra = ("reward_contact",) if self.weights.contact_cost > 0 else ()
@@ -76,3 +85,35 @@ class Humanoid(LocomotionEnv):
     def is_healthy(self, data: mjx.Data) -> jax.Array:
         z = data.qpos[2]
         return ((z > 1.0) & (z < 2.0)).astype(jnp.float32)
+
+
+class HumanoidFull(Humanoid):
+    """Humanoid with Gym v2/v3's whole 376-dim observation (``humanoid_376``): qpos[2:] (22),
+    qvel (23), then per body (world included) the com-based inertia ``cinert`` (14 x 10) and
+    velocity ``cvel`` (14 x 6), the actuator forces ``qfrc_actuator`` (23) and the external
+    contact forces ``cfrc_ext`` (14 x 6). Everything else is ``humanoid``'s; the first 45
+    entries are its observation, so the termination function and projections carry over.
+    Gym v2/v3 under mujoco-py >= 2.0 (and Gymnasium v4) observed ``cfrc_ext`` as zeros; here it
+    is the real post-constraint force, as Gymnasium v5 (whose 348 dims leave the world body and
+    the free joint's actuator forces out) observes it."""
+
+    name = "humanoid_376"
+
+    def __init__(self, physics: str | PhysicsOptions = "fast") -> None:
+        super().__init__(physics)
+        bodies = [self.mj_model.body(b).name or "world" for b in range(self.mj_model.nbody)]
+        dofs = [f"dof{i}" for i in range(self.mj_model.nv)]
+        self.obs_names = (
+            self.obs_names
+            + tuple(f"cinert_{b}_{i}" for b in bodies for i in range(10))
+            + tuple(f"cvel_{b}_{i}" for b in bodies for i in range(6))
+            + tuple(f"qfrc_actuator_{d}" for d in dofs)
+            + tuple(f"cfrc_ext_{b}_{i}" for b in bodies for i in range(6))
+        )
+
+    def observation(self, data: mjx.Data) -> jax.Array:
+        return jnp.concatenate([
+            data.qpos[2:], data.qvel, backend_field(data, "cinert").ravel(),
+            backend_field(data, "cvel").ravel(), data.qfrc_actuator,
+            backend_field(data, "cfrc_ext").ravel(),
+        ])  # fmt: skip

@@ -97,7 +97,7 @@ def make_failure_grid(
         qpos = data.qpos + noise * jax.random.normal(k_q, data.qpos.shape)
         qvel = qvel + noise * jax.random.normal(k_v, qvel.shape)
         model = apply_task(env.mjx_model, env.nominal_fields, task)
-        data = mjx.forward(model, data.replace(qpos=qpos, qvel=qvel))
+        data = env.complete(model, mjx.forward(model, data.replace(qpos=qpos, qvel=qvel)))
         state = state.replace(pipeline_state=data, obs=env.observation(data))
 
         traj = acting.unroll(env, policy_of(params), state, steps)
