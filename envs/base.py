@@ -202,7 +202,6 @@ class LocomotionEnv(Env, abc.ABC):
         forward = (after.qpos[0] - before.qpos[0]) / self.dt
         return {"forward": forward, "ctrl": jnp.sum(jnp.square(action))}
 
-    @abc.abstractmethod
     def complete(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         """``data`` with what the observation and reward read beyond ``mjx.step`` /
         ``mjx.forward`` (Humanoid: the external contact forces); called after every step and
@@ -210,6 +209,7 @@ class LocomotionEnv(Env, abc.ABC):
         del model
         return data
 
+    @abc.abstractmethod
     def observation(self, data: mjx.Data) -> jax.Array:
         """Gym v3 observation from physics data."""
 

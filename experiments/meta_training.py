@@ -16,9 +16,11 @@ resumes training and skips meta-tests already written
 (``<member>/meta_test/<variant>_<step>.json``).
 
 Writes ``experiments/results/meta_training_<tag>.{json,md}`` and, per environment, the
-adaptation curves ``meta_testing_<tag>_<env>.png``: per stage and arm, mean +- std over seeds
-[95% bootstrap interval of the mean], MA's difference from MB-MPO (direction when its interval
-excludes zero), and the paper's numbers beside ours (``minatt_jax.paper_numbers``).
+adaptation curves ``meta_testing_<tag>_<env>.png`` and an ``analyze`` report of its members
+(``meta_training_<tag>_<env>_report/``; ``--no-report`` skips it). The tables: per stage and
+arm, mean +- std over seeds [95% bootstrap interval of the mean], the difference from MB-MPO
+(direction when its interval excludes zero), and the paper's numbers beside ours
+(``minatt_jax.paper_numbers``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import dataclasses
 import functools
 import json
 import os
+import shutil
 from typing import Any
 
 import numpy as np
@@ -185,6 +188,26 @@ def plot_adaptation(result: dict[str, Any], env: str, variants: list[str], path:
     plots.save_figure(fig, path)
 
 
+def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str) -> None:
+    """``minatt-jax analyze`` on every member of each environment (K(t)x + v(t), heatmaps,
+    failure grid, maturation at the stages); its figures and tables are copied beside the
+    tables (``report.html`` stays under the runs)."""
+    from minatt_jax.cli import main as cli
+
+    for env in dict.fromkeys(c.env for c in configs):
+        dirs = [os.path.join(out_dir, population.member_name(c, SWEPT)) for c in configs
+                if c.env == env]  # fmt: skip
+        report = os.path.join(out_dir, "reports", env)
+        argv = ["analyze", *dirs, "--out", report, "--maturation-steps", *map(str, steps)]
+        if cli(argv) != 0:
+            raise SystemExit(f"meta_training: analyze failed for {env}")
+        target = os.path.join(RESULTS, f"meta_training_{tag}_{env}_report")
+        os.makedirs(target, exist_ok=True)
+        for name in os.listdir(report):
+            if name.endswith((".png", ".md", ".json")):
+                shutil.copy(os.path.join(report, name), os.path.join(target, name))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
@@ -196,6 +219,7 @@ def main() -> None:
     parser.add_argument("--normalize-reward", action="store_true", default=None)
     parser.add_argument("--variants", nargs="*", default=["mass", "crippled", "slope"])
     parser.add_argument("--no-meta-test", action="store_true")
+    parser.add_argument("--no-report", action="store_true", help="skip the analyze reports")
     parser.add_argument("--collect-only", action="store_true",
                         help="tabulate what the runs hold now, without training")  # fmt: skip
     parser.add_argument("--runs", default="runs/meta_training")
@@ -235,6 +259,8 @@ def main() -> None:
         for env in args.envs:
             path = os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png")
             plot_adaptation(result, env, variants, path)
+    if not args.no_report:
+        write_reports(configs, out_dir, steps, tag)
     print(text)
 
 

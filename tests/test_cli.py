@@ -18,6 +18,7 @@ def test_envs_json(capsys):
     table = json.loads(capsys.readouterr().out)
     assert table["hopper"]["observation_size"] == 11
     assert table["humanoid"]["action_size"] == 17
+    assert table["humanoid_376"]["observation_size"] == 376
     assert len(table["halfcheetah"]["task_sets"]["train"]) == 5
     assert table["walker2d"]["task_sets"]["crippled"] == ["crippled thigh_joint"]
 
@@ -65,7 +66,7 @@ def test_console_script_error_has_no_traceback():
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines() == [
         "minatt-jax: error: unknown environment 'ant'; choose from hopper, halfcheetah, "
-        "walker2d, humanoid, cheetah_run"
+        "walker2d, humanoid, humanoid_376, cheetah_run"
     ]
 
 
