@@ -65,44 +65,26 @@ def markdown(result: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
-    parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
-    parser.add_argument("--envs", nargs="+", default=["halfcheetah"])
-    parser.add_argument("--seeds", default="0-4")
-    parser.add_argument("--alpha", type=float, default=1.0)
-    parser.add_argument("--placement", default=None, help="default: the library's")
-    parser.add_argument("--normalize-reward", action="store_true", default=None)
-    parser.add_argument("--collect-only", action="store_true")
-    parser.add_argument("--runs", default="runs/ablation")
+    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ablation")
     args = parser.parse_args()
     configs = members(args)
     steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
-    tag = args.scale if args.steps is None else f"{args.scale}_{args.steps // 1000}k"
+    tag = xt.study_tag(args)
     out_dir = os.path.join(args.runs, tag)
     try:
         if not args.collect_only:
             population.train_in_stages(configs, out_dir, SWEPT, steps)
     except runner.RunError as e:
         raise SystemExit(f"ablation: {e}") from None
-    tables: dict[str, Any] = {}
+    tables = {}
     for env in args.envs:
-        dirs: dict[str, list[str]] = {}
-        for c in configs:
-            if c.env == env:
-                dirs.setdefault(arm_of(c), []).append(
-                    os.path.join(out_dir, population.member_name(c, SWEPT)))  # fmt: skip
+        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
         tables[env] = {str(s): xt.training_rows(dirs, s, baseline="full") for s in steps}
-    command = (f"python experiments/ablation.py --scale {args.scale}"
-               + (f" --steps {args.steps}" if args.steps else "")
-               + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
-               + (f" --placement {args.placement}" if args.placement else "")
-               + (" --normalize-reward" if args.normalize_reward else ""))  # fmt: skip
+    command = xt.study_command("ablation.py", args)
     result = {"tag": tag, **xt.provenance(command), "alpha": args.alpha, "stages": steps,
               "tables": tables}  # fmt: skip
-    os.makedirs(RESULTS, exist_ok=True)
-    runner.write_json_atomic(os.path.join(RESULTS, f"ablation_{tag}.json"), result)
     text = markdown(result)
-    runner.write_text_atomic(os.path.join(RESULTS, f"ablation_{tag}.md"), text)
+    xt.write_study(RESULTS, f"ablation_{tag}", result, text)
     print(text)
 
 

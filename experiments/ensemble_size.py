@@ -40,6 +40,7 @@ def members(args: argparse.Namespace) -> list[Any]:
                 out.append(resolve(with_overrides(
                     base, env=env, algo="mbmpo", seed=seed, ma_alpha=args.alpha,
                     model_ensemble_size=size, mb_rollout_batch=trajectories,
+                    ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
                     total_steps=args.steps,
                 )))  # fmt: skip
     return out
@@ -87,19 +88,13 @@ def markdown(result: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
-    parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
-    parser.add_argument("--envs", nargs="+", default=["halfcheetah"])
-    parser.add_argument("--seeds", default="0-4")
-    parser.add_argument("--alpha", type=float, default=1.0)
+    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ensemble_size")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 5, 15, 20])
     parser.add_argument("--trajectories", type=int, nargs="+", default=[16, 128, 256, 512])
-    parser.add_argument("--collect-only", action="store_true")
-    parser.add_argument("--runs", default="runs/ensemble_size")
     args = parser.parse_args()
     configs = members(args)
     steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
-    tag = args.scale if args.steps is None else f"{args.scale}_{args.steps // 1000}k"
+    tag = xt.study_tag(args)
     out_dir = os.path.join(args.runs, tag)
     try:
         if not args.collect_only:
@@ -111,26 +106,21 @@ def main() -> None:
     tables: dict[str, Any] = {}
     curves: dict[str, Any] = {}
     for env in args.envs:
-        dirs: dict[str, list[str]] = {}
-        for c in configs:
-            if c.env == env:
-                dirs.setdefault(arm_of(c), []).append(
-                    os.path.join(out_dir, population.member_name(c, SWEPT)))  # fmt: skip
+        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
         known = baseline if baseline in dirs else None
         tables[env] = {str(s): xt.training_rows(dirs, s, baseline=known) for s in steps}
         curves[env] = {arm: xt.curves(d) for arm, d in dirs.items()}
-    command = (f"python experiments/ensemble_size.py --scale {args.scale}"
-               + (f" --steps {args.steps}" if args.steps else "")
-               + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
-               + f" --sizes {' '.join(map(str, args.sizes))}"
-               + f" --trajectories {' '.join(map(str, args.trajectories))}")  # fmt: skip
+    command = xt.study_command(
+        "ensemble_size.py",
+        args,
+        f" --sizes {' '.join(map(str, args.sizes))}"
+        f" --trajectories {' '.join(map(str, args.trajectories))}",
+    )
     result = {"tag": tag, **xt.provenance(command), "alpha": args.alpha, "stages": steps,
               "tables": tables, "curves": curves}  # fmt: skip
-    os.makedirs(RESULTS, exist_ok=True)
     name = f"ensemble_size_{tag}"
-    runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
     text = markdown(result)
-    runner.write_text_atomic(os.path.join(RESULTS, f"{name}.md"), text)
+    xt.write_study(RESULTS, name, result, text)
     plot(result, os.path.join(RESULTS, f"{name}.png"))
     print(text)
 

@@ -51,6 +51,10 @@ def arms(alpha: float) -> list[tuple[str, str, float]]:
     return [("sac", "sac", 0.0), ("mbmpo", "mbmpo", 0.0), ("ma", "mbmpo", alpha)]
 
 
+def arm_of(config: Any) -> str:
+    return "sac" if config.algo == "sac" else ("ma" if config.ma.alpha > 0 else "mbmpo")
+
+
 def members(args: argparse.Namespace) -> list[Any]:
     out = []
     for env in args.envs:
@@ -89,21 +93,16 @@ def meta_test_stage(step: int, dirs: list[str], variants: list[str]) -> None:
 def collect(configs: list[Any], out_dir: str, steps: list[int], alpha: float,
             variants: list[str]) -> dict[str, Any]:  # fmt: skip
     """Per environment, stage and arm: the meta-training and meta-testing statistics."""
-    by_arm: dict[tuple[str, str], list[str]] = {}
-    for c in configs:
-        arm = "sac" if c.algo == "sac" else ("ma" if c.ma.alpha > 0 else "mbmpo")
-        by_arm.setdefault((c.env, arm), []).append(
-            os.path.join(out_dir, population.member_name(c, SWEPT))
-        )
     out: dict[str, Any] = {}
     for env in dict.fromkeys(c.env for c in configs):
         env_out: dict[str, Any] = {"meta_training": {}, "meta_testing": {}}
         for step in steps:
-            dirs = {arm: by_arm.get((env, arm), []) for arm, _, _ in arms(alpha)}
+            found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
+            dirs = {arm: found.get(arm, []) for arm, _, _ in arms(alpha)}
             train_rows, test_rows = xt.training_rows(dirs, step, baseline="mbmpo"), {}
             tests = {arm: [[_read(p) for v in variants
                             if os.path.exists(p := meta_test_path(d, v, step))]
-                           for d in by_arm.get((env, arm), [])]
+                           for d in dirs[arm]]
                      for arm, _, _ in arms(alpha)}  # fmt: skip
             for arm, _, _ in arms(alpha):
                 test_rows[arm] = xt.meta_test_rows(tests[arm], tests["mbmpo"] if arm == "ma"
@@ -210,25 +209,15 @@ def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
-    parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
-    parser.add_argument("--envs", nargs="+", default=list(ENV_NAMES))
-    parser.add_argument("--seeds", default="0-4")
-    parser.add_argument("--alpha", type=float, default=1.0)
-    parser.add_argument("--placement", default=None, help="default: the library's")
-    parser.add_argument("--normalize-reward", action="store_true", default=None)
+    xt.add_study_arguments(parser, envs=list(ENV_NAMES), runs="runs/meta_training")
     parser.add_argument("--variants", nargs="*", default=["mass", "crippled", "slope"])
     parser.add_argument("--no-meta-test", action="store_true")
     parser.add_argument("--no-report", action="store_true", help="skip the analyze reports")
-    parser.add_argument("--collect-only", action="store_true",
-                        help="tabulate what the runs hold now, without training")  # fmt: skip
-    parser.add_argument("--runs", default="runs/meta_training")
     args = parser.parse_args()
     variants = [] if args.no_meta_test else args.variants
     configs = members(args)
-    total = configs[0].total_steps
-    steps = xt.stages(total, configs[0].eval_every)
-    tag = args.scale if args.steps is None else f"{args.scale}_{args.steps // 1000}k"
+    steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
+    tag = xt.study_tag(args)
     out_dir = os.path.join(args.runs, tag)
     try:
         if not args.collect_only:
@@ -236,25 +225,15 @@ def main() -> None:
             population.train_in_stages(configs, out_dir, SWEPT, steps, at_stage)
     except runner.RunError as e:
         raise SystemExit(f"meta_training: {e}") from None
-    command = (
-        "python experiments/meta_training.py --scale "
-        + args.scale
-        + (f" --steps {args.steps}" if args.steps else "")
-        + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
-        + (f" --placement {args.placement}" if args.placement else "")
-        + (" --normalize-reward" if args.normalize_reward else "")
-        + (f" --variants {' '.join(variants)}" if variants else " --no-meta-test")
-    )
+    command = xt.study_command("meta_training.py", args, f" --variants {' '.join(variants)}"
+                               if variants else " --no-meta-test")  # fmt: skip
     result = {"tag": tag, **xt.provenance(command), "stages": steps,
               "alpha": args.alpha, "placement": configs[-1].ma.placement,
               "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
               "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
               "tables": collect(configs, out_dir, steps, args.alpha, variants)}  # fmt: skip
-    os.makedirs(RESULTS, exist_ok=True)
-    name = f"meta_training_{tag}"
-    runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
     text = markdown(result, args.alpha, variants)
-    runner.write_text_atomic(os.path.join(RESULTS, f"{name}.md"), text)
+    xt.write_study(RESULTS, f"meta_training_{tag}", result, text)
     if variants:
         for env in args.envs:
             path = os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png")

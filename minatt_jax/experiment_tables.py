@@ -9,8 +9,9 @@ interval (``minatt_jax.stats``).
 
 from __future__ import annotations
 
+import argparse
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -144,3 +145,53 @@ def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None
             row["return_curve_std"] = np.std(curves, 0).tolist()
         rows[name] = row
     return rows
+
+
+def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: str) -> None:
+    """The options every study script takes: scale, length, environments, seeds, alpha, the
+    reading of MA, --collect-only and where the runs go."""
+    from minatt_jax.config import PRESETS
+
+    parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
+    parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
+    parser.add_argument("--envs", nargs="+", default=envs)
+    parser.add_argument("--seeds", default="0-4")
+    parser.add_argument("--alpha", type=float, default=1.0)
+    parser.add_argument("--placement", default=None, help="default: the library's")
+    parser.add_argument("--normalize-reward", action="store_true", default=None)
+    parser.add_argument("--collect-only", action="store_true",
+                        help="tabulate what the runs hold now, without training")  # fmt: skip
+    parser.add_argument("--runs", default=runs)
+
+
+def study_tag(args: argparse.Namespace) -> str:
+    """The scale, and the length where ``--steps`` shortens it (``cpu_20k``)."""
+    return args.scale if args.steps is None else f"{args.scale}_{args.steps // 1000}k"
+
+
+def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str:
+    """The command line that reproduces a study's result (for its provenance)."""
+    return (f"python experiments/{script} --scale {args.scale}"
+            + (f" --steps {args.steps}" if args.steps else "")
+            + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
+            + (f" --placement {args.placement}" if args.placement else "")
+            + (" --normalize-reward" if args.normalize_reward else "") + extra)  # fmt: skip
+
+
+def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,
+                arm_of: Callable[[Any], str]) -> dict[str, list[str]]:  # fmt: skip
+    """The run directories of ``env``'s members, grouped by ``arm_of(config)``."""
+    from minatt_jax.population import member_name
+
+    out: dict[str, list[str]] = {}
+    for c in configs:
+        if c.env == env:
+            out.setdefault(arm_of(c), []).append(os.path.join(out_dir, member_name(c, swept)))
+    return out
+
+
+def write_study(results: str, name: str, result: dict[str, Any], text: str) -> None:
+    """``<results>/<name>.json`` and ``.md``, atomically."""
+    os.makedirs(results, exist_ok=True)
+    runner.write_json_atomic(os.path.join(results, f"{name}.json"), result)
+    runner.write_text_atomic(os.path.join(results, f"{name}.md"), text)
