@@ -354,12 +354,15 @@ def _train_group(
     stop: run_guard.StopSignals,
 ) -> list[dict[str, Any]]:
     config, trainer = program.config, program.trainer
+    steps = {checkpoint.latest_step(d) for d in dirs} if resume else {None}
+    if len(steps) != 1:
+        raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
+    step = steps.pop()
+    if step is not None and step >= max(c.total_steps for c in program.members):
+        log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
+        return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]
     states = program.init()
     if resume:
-        steps = {checkpoint.latest_step(d) for d in dirs}
-        if len(steps) != 1:
-            raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
-        step = steps.pop()
         if step is not None:
             restored = []
             for i, d in enumerate(dirs):

@@ -134,6 +134,14 @@ def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
     names = sorted(d for d in os.listdir(straight) if d not in ("population.json", ".lock"))
     assert names == ["sac_alpha0_seed0", "sac_alpha0_seed1", "sac_alpha1_seed0",
                      "sac_alpha1_seed1"]  # fmt: skip
+    # A population already at its length: nothing restored or compiled, nothing rewritten.
+    members = [runner.load_config(os.path.join(split, n)) for n in names]
+    before = [runner.read_metrics(os.path.join(split, n)) for n in names]
+    lines: list[str] = []
+    population.train_in_stages(members, split, ["ma.alpha"], [300, 600], log=lines.append)
+    assert lines[1::2] == ["4 members already at env step 600"] * 2
+    assert not [line for line in lines if "compiled" in line]
+    assert [runner.read_metrics(os.path.join(split, n)) for n in names] == before
     for name in names:
         a = runner.read_metrics(os.path.join(straight, name))
         b = runner.read_metrics(os.path.join(split, name))
