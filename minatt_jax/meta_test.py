@@ -56,6 +56,7 @@ class MetaTestConfig:
     updates_per_step: int = 20
     seed: int = 0
     inner_lr: float | None = None  # model-based runs: the inner step's beta (None: the run's)
+    adapt_alpha: float | None = None  # MA's weight in the adaptation updates (None: the run's)
 
     def __post_init__(self) -> None:
         for name in ("shots", "episodes", "updates_per_step"):
@@ -63,8 +64,10 @@ class MetaTestConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.adapt_steps < 0:
             raise ValueError(f"adapt_steps must be >= 0, got {self.adapt_steps}")
-        if self.inner_lr is not None and not self.inner_lr >= 0:
-            raise ValueError(f"inner_lr must be >= 0, got {self.inner_lr}")
+        for name in ("inner_lr", "adapt_alpha"):
+            value = getattr(self, name)
+            if value is not None and not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
 
 
 def _collector(env, policy_of: Callable, max_steps: int, shots: int):
@@ -263,6 +266,11 @@ def meta_test(
     except checkpoint.CheckpointError as e:
         raise runner.RunError(str(e)) from None
     trained_agent = parts["agent"]
+    adapting_agent = trained_agent  # what the adaptation updates start from
+    if settings.adapt_alpha is not None:
+        if not hasattr(trained_agent, "ma_alpha"):
+            raise runner.RunError("--adapt-alpha applies to sac, mbpo and mbmpo runs")
+        adapting_agent = trained_agent.replace(ma_alpha=jnp.float32(settings.adapt_alpha))
     try:
         tasks, labels = envs.resolve_tasks(env, variant, task_specs)
     except envs.TaskSpecError as e:
@@ -275,7 +283,7 @@ def meta_test(
     for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
         k_task = jax.random.fold_in(key, t)
         task_set = envs.stack_tasks([task])
-        agent = trained_agent
+        agent = adapting_agent
 
         def evaluate(agent, i, task_set=task_set, k_task=k_task):
             result = programs.evaluate(policy_params(agent), normalizer,
