@@ -40,10 +40,18 @@ def members(args: argparse.Namespace) -> list[Any]:
                 out.append(resolve(with_overrides(
                     base, env=env, algo="mbmpo", seed=seed, ma_alpha=args.alpha,
                     model_ensemble_size=size, mb_rollout_batch=trajectories,
+                    model_num_elites=elites(base, size),
                     ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
                     total_steps=args.steps,
                 )))  # fmt: skip
     return out
+
+
+def elites(base: Any, size: int | None) -> int | None:
+    """The preset's elites (min(5, M) when unset), at most M; None keeps the preset's."""
+    if size is None:
+        return None
+    return min(base.model.num_elites or 5, size)
 
 
 def arm_of(config: Any) -> str:
