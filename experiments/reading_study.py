@@ -136,7 +136,10 @@ def main() -> None:
     out_dir = os.path.join(args.runs, tag)
     if not args.analyse_only:
         resume = os.path.exists(os.path.join(out_dir, "population.json"))
-        population.train_population(configs, out_dir, SWEPT, resume=resume)
+        try:
+            population.train_population(configs, out_dir, SWEPT, resume=resume)
+        except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
+            raise SystemExit(f"reading_study: {e}") from None
     rows = analyse(configs, out_dir)
     device = jax.devices()[0]
     command = ("python experiments/reading_study.py --scale "
