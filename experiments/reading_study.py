@@ -68,7 +68,7 @@ def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
     arms: dict[tuple, list[dict[str, float]]] = {}
     for c in configs:
         values = final_values(os.path.join(out_dir, population.member_name(c, SWEPT)))
-        if values is not None:
+        if values is not None and values["step"] >= c.total_steps:  # finished members only
             key = (c.env, c.sac.normalize_reward, c.ma.placement, c.ma.alpha)
             arms.setdefault(key, []).append(values)
     rows = []
