@@ -18,7 +18,7 @@ import os
 from typing import Any
 
 from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers, population, runner
+from minatt_jax import paper_numbers, population
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -68,14 +68,7 @@ def main() -> None:
     xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ablation")
     args = parser.parse_args()
     configs = members(args)
-    steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
-    tag = xt.study_tag(args)
-    out_dir = os.path.join(args.runs, tag)
-    try:
-        if not args.collect_only:
-            population.train_in_stages(configs, out_dir, SWEPT, steps)
-    except runner.RunError as e:
-        raise SystemExit(f"ablation: {e}") from None
+    steps, tag, out_dir = xt.train_study("ablation", args, configs, SWEPT)
     tables = {}
     for env in args.envs:
         dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)

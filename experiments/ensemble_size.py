@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers, plots, population, runner
+from minatt_jax import paper_numbers, plots, population
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -101,14 +101,7 @@ def main() -> None:
     parser.add_argument("--trajectories", type=int, nargs="+", default=[16, 128, 256, 512])
     args = parser.parse_args()
     configs = members(args)
-    steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
-    tag = xt.study_tag(args)
-    out_dir = os.path.join(args.runs, tag)
-    try:
-        if not args.collect_only:
-            population.train_in_stages(configs, out_dir, SWEPT, steps)
-    except runner.RunError as e:
-        raise SystemExit(f"ensemble_size: {e}") from None
+    steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT)
     base = PRESETS[args.scale]
     baseline = f"M={base.model.ensemble_size} N={base.mb.rollout_batch}"
     tables: dict[str, Any] = {}

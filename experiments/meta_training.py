@@ -216,15 +216,8 @@ def main() -> None:
     args = parser.parse_args()
     variants = [] if args.no_meta_test else args.variants
     configs = members(args)
-    steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
-    tag = xt.study_tag(args)
-    out_dir = os.path.join(args.runs, tag)
-    try:
-        if not args.collect_only:
-            at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
-            population.train_in_stages(configs, out_dir, SWEPT, steps, at_stage)
-    except runner.RunError as e:
-        raise SystemExit(f"meta_training: {e}") from None
+    at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
+    steps, tag, out_dir = xt.train_study("meta_training", args, configs, SWEPT, at_stage)
     command = xt.study_command("meta_training.py", args, f" --variants {' '.join(variants)}"
                                if variants else " --no-meta-test")  # fmt: skip
     result = {"tag": tag, **xt.provenance(command), "stages": steps,

@@ -195,3 +195,21 @@ def write_study(results: str, name: str, result: dict[str, Any], text: str) -> N
     os.makedirs(results, exist_ok=True)
     runner.write_json_atomic(os.path.join(results, f"{name}.json"), result)
     runner.write_text_atomic(os.path.join(results, f"{name}.md"), text)
+
+
+def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: list[str],
+                at_stage: Callable[[int, list[str]], None] | None = None,
+                ) -> tuple[list[int], str, str]:  # fmt: skip
+    """Trains (or resumes) a study's population stage by stage unless ``--collect-only``;
+    returns (stages, tag, runs folder). A stop or refusal exits with one line."""
+    from minatt_jax.population import train_in_stages
+
+    steps = stages(configs[0].total_steps, configs[0].eval_every)
+    tag = study_tag(args)
+    out_dir = os.path.join(args.runs, tag)
+    try:
+        if not args.collect_only:
+            train_in_stages(configs, out_dir, swept, steps, at_stage)
+    except runner.RunError as e:
+        raise SystemExit(f"{name}: {e}") from None
+    return steps, tag, out_dir
