@@ -15,6 +15,19 @@ import numpy as np
 RESAMPLES = 10_000
 
 
+def _resampled(x: np.ndarray, statistic: str, resamples: int, rng: np.random.Generator):
+    """``statistic`` ("mean" or "std") of ``resamples`` draws of ``x`` with replacement."""
+    draws = x[rng.integers(0, x.size, (resamples, x.size))]
+    return getattr(draws, statistic)(1)
+
+
+def _interval(values: np.ndarray, level: float) -> tuple[float, float]:
+    if values.size == 0:
+        return float("nan"), float("nan")
+    tail = 100 * (1 - level) / 2
+    return float(np.percentile(values, tail)), float(np.percentile(values, 100 - tail))
+
+
 def bootstrap_mean_ci(
     values: Sequence[float], level: float = 0.95, resamples: int = RESAMPLES, seed: int = 0
 ) -> tuple[float, float]:
@@ -23,10 +36,7 @@ def bootstrap_mean_ci(
     x = np.asarray(values, np.float64)
     if x.size == 0:
         return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, (resamples, x.size))].mean(1)
-    tail = 100 * (1 - level) / 2
-    return float(np.percentile(means, tail)), float(np.percentile(means, 100 - tail))
+    return _interval(_resampled(x, "mean", resamples, np.random.default_rng(seed)), level)
 
 
 def bootstrap_diff_ci(
@@ -42,11 +52,8 @@ def bootstrap_diff_ci(
     if x.size == 0 or y.size == 0:
         return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
-    dx = x[rng.integers(0, x.size, (resamples, x.size))].mean(1)
-    dy = y[rng.integers(0, y.size, (resamples, y.size))].mean(1)
-    tail = 100 * (1 - level) / 2
-    d = dx - dy
-    return float(np.percentile(d, tail)), float(np.percentile(d, 100 - tail))
+    dx, dy = _resampled(x, "mean", resamples, rng), _resampled(y, "mean", resamples, rng)
+    return _interval(dx - dy, level)
 
 
 def bootstrap_std_ratio_ci(
@@ -63,13 +70,8 @@ def bootstrap_std_ratio_ci(
     if x.size < 2 or y.size < 2:
         return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
-    sx = x[rng.integers(0, x.size, (resamples, x.size))].std(1)
-    sy = y[rng.integers(0, y.size, (resamples, y.size))].std(1)
-    ratio = sx[sy > 0] / sy[sy > 0]
-    if ratio.size == 0:
-        return float("nan"), float("nan")
-    tail = 100 * (1 - level) / 2
-    return float(np.percentile(ratio, tail)), float(np.percentile(ratio, 100 - tail))
+    sx, sy = _resampled(x, "std", resamples, rng), _resampled(y, "std", resamples, rng)
+    return _interval(sx[sy > 0] / sy[sy > 0], level)
 
 
 def summary(values: Sequence[float]) -> dict[str, float]:
