@@ -96,9 +96,9 @@ def collect(configs: list[Any], out_dir: str, steps: list[int], alpha: float,
     out: dict[str, Any] = {}
     for env in dict.fromkeys(c.env for c in configs):
         env_out: dict[str, Any] = {"meta_training": {}, "meta_testing": {}}
+        found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
+        dirs = {arm: found.get(arm, []) for arm, _, _ in arms(alpha)}
         for step in steps:
-            found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
-            dirs = {arm: found.get(arm, []) for arm, _, _ in arms(alpha)}
             train_rows, test_rows = xt.training_rows(dirs, step, baseline="mbmpo"), {}
             tests = {arm: [[_read(p) for v in variants
                             if os.path.exists(p := meta_test_path(d, v, step))]

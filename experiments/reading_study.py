@@ -22,19 +22,17 @@ above); with fewer than 5 seeds in an arm or its baseline there is no verdict. W
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 from typing import Any
 
-import jax
-
+from minatt_jax import experiment_tables as xt
 from minatt_jax import population, runner, stats
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 SWEPT = ["env", "ma.placement", "sac.normalize_reward", "ma.alpha"]
-MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values is not a test)
+MIN_SEEDS = xt.MIN_SEEDS  # fewer seeds per arm: no verdict
 
 
 def members(args: argparse.Namespace) -> list[Any]:
@@ -141,23 +139,18 @@ def main() -> None:
         except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
             raise SystemExit(f"reading_study: {e}") from None
     rows = analyse(configs, out_dir)
-    device = jax.devices()[0]
     command = ("python experiments/reading_study.py --scale "
                f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "
                f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
                f"--placements {' '.join(args.placements)}"
                + (f" --steps {args.steps}" if args.steps else ""))  # fmt: skip
-    result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
-              "date": datetime.date.today().isoformat(), "arms": rows}  # fmt: skip
-    os.makedirs(RESULTS, exist_ok=True)
-    name = f"reading_study_{tag}"
-    runner.write_json_atomic(os.path.join(RESULTS, f"{name}.json"), result)
+    result = {**xt.provenance(command), "arms": rows}
     header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "
               "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "
               "interval of the mean] (direction against alpha = 0 with the same reward "
               "normalization, when its interval excludes zero).")  # fmt: skip
     text = markdown(rows, header)
-    runner.write_text_atomic(os.path.join(RESULTS, f"{name}.md"), text)
+    xt.write_study(RESULTS, f"reading_study_{tag}", result, text)
     print(text)
 
 
