@@ -183,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_meta.add_argument("--adapt-alpha", type=_non_negative_float, default=None,
                         help="MA's weight in the adaptation updates (default: the run's "
                         "alpha; 0 adapts without the penalty)")  # fmt: skip
+    p_meta.add_argument("--no-refit", action="store_true",
+                        help="model-based runs: adapt in the trained ensemble instead of one "
+                        "refitted on the collected episodes")  # fmt: skip
     p_meta.add_argument("--out", default=None, help="directory for meta_test_<variant>.json/png")
     p_meta.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -555,7 +558,7 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     settings = MetaTestConfig(
         shots=args.shots, adapt_steps=args.adapt_steps, episodes=args.episodes,
         updates_per_step=args.updates_per_step, seed=args.seed, inner_lr=args.inner_lr,
-        adapt_alpha=args.adapt_alpha,
+        adapt_alpha=args.adapt_alpha, refit_model=not args.no_refit,
     )  # fmt: skip
     if (args.variant is None) == (not args.task):
         raise UserError("meta-test needs either --variant NAME or --task SPEC (one or more)")

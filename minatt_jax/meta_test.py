@@ -13,7 +13,10 @@ For every task of a task set (mass, crippled, slope, ...):
      theta <- theta - beta grad L(theta) on each slot's imagined data, averaged over slots.
      mbmpo uses its own inner step (``mb.meta_inner``: the SAC actor loss on one-step
      transitions, or VPG on ``vpg_horizon``-step trajectories; first-order or not; beta =
-     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step;
+     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step. The SAC inner step
+     reads only the supports' states (collected real states) and the trained critic, so the
+     model, refitted or not (``refit_model``), enters only through VPG's inner step or the
+     rollout reading of MA's temporal term;
    * dreamer: ``updates_per_step`` DreamerV3 updates (world model, actor, critic; MA included)
      on sequences sampled from the K collected episodes (its policy is recurrent: collection and
      evaluation run it through ``policies``, feedback with respect to the observation).
@@ -57,6 +60,9 @@ class MetaTestConfig:
     seed: int = 0
     inner_lr: float | None = None  # model-based runs: the inner step's beta (None: the run's)
     adapt_alpha: float | None = None  # MA's weight in the adaptation updates (None: the run's)
+    # model-based runs: refit the ensemble on the collected episodes before adapting (False:
+    # adapt on the trained ensemble, to tell a model error from the adaptation step's)
+    refit_model: bool = True
 
     def __post_init__(self) -> None:
         for name in ("shots", "episodes", "updates_per_step"):
@@ -129,10 +135,15 @@ def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
     """The meta-test's compiled functions (evaluate, collect, refit, adapt, policy_params) for
     one configuration, built once per process: a run's own arrays (agent, normalizer, return
     statistics, model) are their arguments, so meta-testing many runs of one configuration
-    (seeds, stages, task sets) compiles once. Keyed by the configuration but its seed and
-    length, and the settings but their seed."""
-    key = json.dumps([replace_fields(config, {"seed": 0, "total_steps": 1}).to_dict(),
-                      dataclasses.replace(settings, seed=0).__repr__()], sort_keys=True,
+    (seeds, stages, task sets) compiles once; so are the inner step size and MA's weight in the
+    adaptation (swept by ``experiments/adaptation_step.py``). Keyed by the configuration but its
+    seed, length and inner step size, and the settings but those."""
+    unkeyed = {"seed": 0, "total_steps": 1}
+    if config.model_based:
+        unkeyed["mb.meta_inner_lr"] = 0.0
+    swept = dataclasses.replace(settings, seed=0, inner_lr=None, adapt_alpha=None,
+                                refit_model=True)  # fmt: skip
+    key = json.dumps([replace_fields(config, unkeyed).to_dict(), repr(swept)], sort_keys=True,
                      default=str)  # fmt: skip
     if key in _PROGRAMS:
         return _PROGRAMS[key]
@@ -202,7 +213,7 @@ def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
             return ensemble.fit(ens_state, buffer.data, buffer.size, key)[0]
 
         @jax.jit
-        def adapt(agent, ens_state, data, valid, key, normalizer, return_stats):
+        def adapt(agent, ens_state, data, valid, key, normalizer, return_stats, step_size):
             k_start, k_roll, k_inner = jax.random.split(key, 3)
             count = jnp.maximum(jnp.sum(valid).astype(jnp.int32), 1)
             order = jnp.argsort(valid <= 0, stable=True)
@@ -220,7 +231,9 @@ def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
                 supports = jax.tree.map(lambda x: x[:, 0], rollouts)
 
             def inner(p, k):
-                adapted = jax.vmap(lambda s, kk: meta.adapt(p, agent, s, kk)[0])(
+                adapted = jax.vmap(
+                    lambda s, kk: meta.adapt(p, agent, s, kk, step_size=step_size)[0]
+                )(
                     supports, jax.random.split(k, slots)
                 )
                 return jax.tree.map(lambda a: jnp.mean(a, axis=0), adapted)
@@ -248,8 +261,6 @@ def meta_test(
     except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
         raise runner.RunError(str(e)) from None
     config, env, sac, kind = policy.config, policy.env, policy.agent, policy.family
-    if settings.inner_lr is not None and config.model_based:
-        config = replace_fields(config, {"mb.meta_inner_lr": settings.inner_lr})
     model_based = config.model_based
     dreamer = config.algo == "dreamer"
     # The agent (and the ensemble) alone: no replay or model buffers are allocated.
@@ -278,6 +289,10 @@ def meta_test(
     programs = _programs(config, env, sac, kind, ensemble, settings)
     normalizer, return_stats = policy.normalizer, parts.get("data/return_stats")
     policy_params = programs.policy_params
+    step_size = None
+    if model_based:
+        beta = config.mb.meta_inner_lr if settings.inner_lr is None else settings.inner_lr
+        step_size = jnp.float32(beta)
     key = jax.random.PRNGKey(settings.seed)
     rows = []
     for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
@@ -296,11 +311,14 @@ def meta_test(
         data, valid = _flat(traj)
         ens_state = None
         if model_based and settings.adapt_steps > 0:
-            ens_state = programs.refit(parts["model"], data, valid, jax.random.fold_in(k_task, 2))
+            ens_state = parts["model"]
+            if settings.refit_model:
+                ens_state = programs.refit(ens_state, data, valid, jax.random.fold_in(k_task, 2))
         for i in range(1, settings.adapt_steps + 1):
             k = jax.random.fold_in(k_task, 10 + i)
             if model_based:
-                agent = programs.adapt(agent, ens_state, data, valid, k, normalizer, return_stats)
+                agent = programs.adapt(agent, ens_state, data, valid, k, normalizer, return_stats,
+                                       step_size)
             elif dreamer:
                 agent = programs.adapt(agent, traj, k)
             else:

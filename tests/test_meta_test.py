@@ -120,3 +120,30 @@ def test_meta_test_inner_lr_zero_leaves_the_mbmpo_policy_where_it_was(runs, tmp_
     for row in result["tasks"]:
         # theta - 0 * grad, averaged over the elite slots: equal up to float32 rounding
         assert max(row["policy_distance_curve"]) < 1e-5
+
+
+def test_meta_test_sweeps_inner_step_alpha_and_refit_without_recompiling(runs):
+    """The adaptation's swept settings (inner step size, MA's weight, refit or not) are data:
+    one compile per program, and each setting changes the adapted policy as it should."""
+    meta_test._PROGRAMS.clear()
+    moved = {}
+    for beta, adapt_alpha, refit in ((1e-3, None, True), (1e-4, None, True), (1e-3, 0.0, True),
+                                     (1e-3, None, False)):  # fmt: skip
+        settings = meta_test.MetaTestConfig(adapt_steps=1, episodes=1, inner_lr=beta,
+                                            adapt_alpha=adapt_alpha, refit_model=refit)
+        result = meta_test.meta_test(runs["mbmpo"], "mass", settings, log=lambda _: None,
+                                     task_specs=("mass=1.5",))  # fmt: skip
+        moved[beta, adapt_alpha, refit] = result["tasks"][0]["policy_distance_curve"][0]
+    assert len(meta_test._PROGRAMS) == 1
+    (programs,) = meta_test._PROGRAMS.values()
+    for fn in (programs.adapt, programs.evaluate, programs.collect, programs.refit):
+        assert fn._cache_size() == 1
+    meta_test._PROGRAMS.clear()
+    base = moved[1e-3, None, True]
+    # one inner step from the same policy on the same imagined data: distance is linear in beta
+    np.testing.assert_allclose(moved[1e-4, None, True], base / 10, rtol=1e-2)
+    assert moved[1e-3, 0.0, True] != base
+    # mbmpo's default inner step (the SAC actor loss on one-step supports; MA's temporal term
+    # read between parameter versions) reads only the supports' states, which are collected
+    # real states: the model, refitted or not, does not enter the adaptation.
+    assert moved[1e-3, None, False] == base
