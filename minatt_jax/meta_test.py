@@ -233,9 +233,7 @@ def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
             def inner(p, k):
                 adapted = jax.vmap(
                     lambda s, kk: meta.adapt(p, agent, s, kk, step_size=step_size)[0]
-                )(
-                    supports, jax.random.split(k, slots)
-                )
+                )(supports, jax.random.split(k, slots))
                 return jax.tree.map(lambda a: jnp.mean(a, axis=0), adapted)
 
             return agent.replace(actor_params=inner(agent.actor_params, k_inner))
@@ -317,8 +315,9 @@ def meta_test(
         for i in range(1, settings.adapt_steps + 1):
             k = jax.random.fold_in(k_task, 10 + i)
             if model_based:
-                agent = programs.adapt(agent, ens_state, data, valid, k, normalizer, return_stats,
-                                       step_size)
+                agent = programs.adapt(
+                    agent, ens_state, data, valid, k, normalizer, return_stats, step_size
+                )
             elif dreamer:
                 agent = programs.adapt(agent, traj, k)
             else:

@@ -129,8 +129,9 @@ def test_meta_test_sweeps_inner_step_alpha_and_refit_without_recompiling(runs):
     moved = {}
     for beta, adapt_alpha, refit in ((1e-3, None, True), (1e-4, None, True), (1e-3, 0.0, True),
                                      (1e-3, None, False)):  # fmt: skip
-        settings = meta_test.MetaTestConfig(adapt_steps=1, episodes=1, inner_lr=beta,
-                                            adapt_alpha=adapt_alpha, refit_model=refit)
+        settings = meta_test.MetaTestConfig(
+            adapt_steps=1, episodes=1, inner_lr=beta, adapt_alpha=adapt_alpha, refit_model=refit
+        )
         result = meta_test.meta_test(runs["mbmpo"], "mass", settings, log=lambda _: None,
                                      task_specs=("mass=1.5",))  # fmt: skip
         moved[beta, adapt_alpha, refit] = result["tasks"][0]["policy_distance_curve"][0]
