@@ -56,7 +56,7 @@ def main() -> None:
                   f"{result['mean_over_tasks']['return']['after']:.1f}", flush=True)  # fmt: skip
     command = (f"python experiments/adaptation_step.py {' '.join(args.run_dirs)} --variant "
                f"{args.variant} --inner-lrs {' '.join(f'{b:g}' for b in args.inner_lrs)} "
-               f"--adapt-steps {args.adapt_steps}"
+               f"--adapt-steps {args.adapt_steps} --name {args.name}"
                + ("" if args.adapt_alphas == [None] else " --adapt-alphas "
                   + " ".join(f"{a:g}" for a in args.adapt_alphas)))  # fmt: skip
     result = {**xt.provenance(command), "variant": args.variant, "rows": rows}
