@@ -26,6 +26,7 @@ members exactly as single runs; the population directory holds ``population.json
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import time
@@ -282,47 +283,63 @@ def train_population(
     # Built first: a population that cannot fit is refused before anything is written.
     programs = [Program([members[i] for i in own]) if own else None for own in mine]
     own_members = [i for own in mine for i in own]
-    if resume:
-        if rank == 0 and not os.path.exists(index_path):
-            raise RunError(f"{out_dir} holds no population to resume (no population.json)")
-        for i in own_members:
-            stored = load_config(dirs[i])
-            same_length = replace_fields(members[i], {"total_steps": stored.total_steps})
-            if same_length.to_dict() != stored.to_dict():
-                raise RunError(f"{dirs[i]} was made with other settings; see its config.json")
-        for i in own_members:  # as for single runs, only the length may change on resume
-            if load_config(dirs[i]).total_steps != members[i].total_steps:
-                write_json_atomic(os.path.join(dirs[i], "config.json"), members[i].to_dict())
-    else:
-        if rank == 0 and os.path.exists(index_path):
-            raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
-        try:
-            for i in own_members:
-                os.makedirs(dirs[i], exist_ok=True)
-                write_json_atomic(os.path.join(dirs[i], "config.json"), members[i].to_dict())
-            if rank == 0:
-                write_json_atomic(index_path, index)
-        except OSError as e:
-            reason = e.strerror or e
-            raise RunError(f"cannot write the population into {out_dir}: {reason}") from None
     last: list[dict[str, Any]] = [{} for _ in members]
     lock = ".lock" if processes == 1 else f".lock-process{rank}"
-    try:
-        with run_guard.lock_run(out_dir, lock), run_guard.StopSignals() as stop:
-            for g, (indices, program) in enumerate(zip(mine, programs, strict=True)):
-                if program is None:
-                    continue  # more processes than this group has members
-                group = program.members
-                mib = program.bytes_per_member / 2**20
-                on = f" (process {rank + 1}/{processes})" if processes > 1 else ""
-                log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members{on} "
-                    f"({group[0].algo}, {group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
-                records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
-                for i, r in zip(indices, records, strict=True):
-                    last[i] = r
-    except run_guard.RunLockedError as e:
-        raise RunError(str(e)) from None
+    with contextlib.ExitStack() as held:
+        # Everything below, the checks of a resumed population included, runs under the lock:
+        # a second process on the same population is refused before it writes anything.
+        try:
+            held.enter_context(run_guard.lock_run(out_dir, lock))
+        except run_guard.RunLockedError as e:
+            raise RunError(str(e)) from None
+        except OSError as e:
+            raise RunError(f"cannot write the population into {out_dir}: "
+                           f"{e.strerror or e}") from None  # fmt: skip
+        stop = held.enter_context(run_guard.StopSignals())
+        _write_members([members[i] for i in own_members], [dirs[i] for i in own_members],
+                       index_path, index if rank == 0 else None, resume)  # fmt: skip
+        for g, (indices, program) in enumerate(zip(mine, programs, strict=True)):
+            if program is None:
+                continue  # more processes than this group has members
+            group = program.members
+            mib = program.bytes_per_member / 2**20
+            on = f" (process {rank + 1}/{processes})" if processes > 1 else ""
+            log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members{on} "
+                f"({group[0].algo}, {group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
+            records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
+            for i, r in zip(indices, records, strict=True):
+                last[i] = r
     return last
+
+
+def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
+                   index: dict[str, Any] | None, resume: bool) -> None:  # fmt: skip
+    """Checks a resumed population's members against ``members`` (only the length may change,
+    as for single runs, and is rewritten), or writes a new population's member configurations
+    and (``index`` given: process 0) its index."""
+    out_dir = os.path.dirname(index_path)
+    if resume:
+        if index is not None and not os.path.exists(index_path):
+            raise RunError(f"{out_dir} holds no population to resume (no population.json)")
+        stored = [load_config(d) for d in dirs]
+        for member, old, run_dir in zip(members, stored, dirs, strict=True):
+            same_length = replace_fields(member, {"total_steps": old.total_steps})
+            if same_length.to_dict() != old.to_dict():
+                raise RunError(f"{run_dir} was made with other settings; see its config.json")
+        for member, old, run_dir in zip(members, stored, dirs, strict=True):
+            if old.total_steps != member.total_steps:
+                write_json_atomic(os.path.join(run_dir, "config.json"), member.to_dict())
+        return
+    if index is not None and os.path.exists(index_path):
+        raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
+    try:
+        for member, run_dir in zip(members, dirs, strict=True):
+            os.makedirs(run_dir, exist_ok=True)
+            write_json_atomic(os.path.join(run_dir, "config.json"), member.to_dict())
+        if index is not None:
+            write_json_atomic(index_path, index)
+    except OSError as e:
+        raise RunError(f"cannot write the population into {out_dir}: {e.strerror or e}") from None
 
 
 def train_in_stages(

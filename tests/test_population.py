@@ -206,3 +206,29 @@ def test_a_population_that_cannot_fit_is_refused_before_compiling(monkeypatch, c
     err = capsys.readouterr().err
     assert "4 members need about" in err and "--set buffer_size" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "pop").exists()
+
+
+def test_a_locked_population_is_refused_before_anything_is_written(monkeypatch, tmp_path):
+    """A second process on a population being trained neither creates members nor rewrites a
+    resumed member's length: the lock is taken before the population's files are touched."""
+    monkeypatch.setattr(population, "_train_group", lambda program, dirs, *a: [{} for _ in dirs])
+    members = population.expand(ONE_CHUNK, [0, 1], [])
+    out = str(tmp_path / "pop")
+    population.train_population(members, out, [], log=lambda _: None)  # files only: no training
+    config_path = os.path.join(out, population.member_name(members[0], []), "config.json")
+    with open(config_path) as f:
+        written = f.read()
+    longer = [with_overrides(m, total_steps=600) for m in members]
+    with population.run_guard.lock_run(out):
+        with pytest.raises(runner.RunError, match="another process"):
+            population.train_population(longer, out, [], resume=True, log=lambda _: None)
+        fresh = str(tmp_path / "fresh")
+        with population.run_guard.lock_run(fresh):
+            with pytest.raises(runner.RunError, match="another process"):
+                population.train_population(members, fresh, [], log=lambda _: None)
+        assert sorted(os.listdir(fresh)) == [".lock"]
+    with open(config_path) as f:
+        assert f.read() == written
+    population.train_population(longer, out, [], resume=True, log=lambda _: None)
+    with open(config_path) as f:
+        assert json.load(f)["total_steps"] == 600  # unlocked, the length changes as before
