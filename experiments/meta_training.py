@@ -15,8 +15,10 @@ meta-tested (``meta_test.meta_test``: 1 real episode per task, 10 adaptation ste
 resumes training and skips meta-tests already written
 (``<member>/meta_test/<variant>_<step>.json``).
 
-Writes ``experiments/results/meta_training_<tag>.{json,md}`` and, per environment, the
-adaptation curves ``meta_testing_<tag>_<env>.png`` and an ``analyze`` report of its members
+Per environment (one population under ``<runs>/<env>/<tag>``, trained and tabulated in turn, so
+each agent's table is written when it finishes) writes
+``experiments/results/meta_training_<tag>_<env>.{json,md}``, the adaptation curves
+``meta_testing_<tag>_<env>.png`` and an ``analyze`` report of its members
 (``meta_training_<tag>_<env>_report/``; ``--no-report`` skips it). The tables: per stage and
 arm, mean +- std over seeds [95% bootstrap interval of the mean], the difference from MB-MPO
 (direction when its interval excludes zero), and the paper's numbers beside ours
@@ -215,25 +217,27 @@ def main() -> None:
     parser.add_argument("--no-report", action="store_true", help="skip the analyze reports")
     args = parser.parse_args()
     variants = [] if args.no_meta_test else args.variants
-    configs = members(args)
     at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
-    steps, tag, out_dir = xt.train_study("meta_training", args, configs, SWEPT, at_stage)
-    command = xt.study_command("meta_training.py", args, f" --variants {' '.join(variants)}"
-                               if variants else " --no-meta-test")  # fmt: skip
-    result = {"tag": tag, **xt.provenance(command), "stages": steps,
-              "alpha": args.alpha, "placement": configs[-1].ma.placement,
-              "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
-              "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
-              "tables": collect(configs, out_dir, steps, args.alpha, variants)}  # fmt: skip
-    text = markdown(result, args.alpha, variants)
-    xt.write_study(RESULTS, f"meta_training_{tag}", result, text)
-    if variants:
-        for env in args.envs:
-            path = os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png")
-            plot_adaptation(result, env, variants, path)
-    if not args.no_report:
-        write_reports(configs, out_dir, steps, tag)
-    print(text)
+    for env in args.envs:  # one population, table and report per agent, written as it finishes
+        one = argparse.Namespace(**{**vars(args), "envs": [env],
+                                    "runs": os.path.join(args.runs, env)})  # fmt: skip
+        configs = members(one)
+        steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage)
+        command = xt.study_command("meta_training.py", one, f" --variants {' '.join(variants)}"
+                                   if variants else " --no-meta-test")  # fmt: skip
+        result = {"tag": tag, **xt.provenance(command), "stages": steps,
+                  "alpha": args.alpha, "placement": configs[-1].ma.placement,
+                  "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
+                  "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
+                  "tables": collect(configs, out_dir, steps, args.alpha, variants)}  # fmt: skip
+        text = markdown(result, args.alpha, variants)
+        xt.write_study(RESULTS, f"meta_training_{tag}_{env}", result, text)
+        if variants:
+            plot_adaptation(result, env, variants,
+                            os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png"))  # fmt: skip
+        if not args.no_report:
+            write_reports(configs, out_dir, steps, tag)
+        print(text, flush=True)
 
 
 if __name__ == "__main__":
