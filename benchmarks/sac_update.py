@@ -38,6 +38,12 @@ VARIANTS: dict[str, ma.MAConfig] = {
     "plain SAC (alpha=0)": ma.MAConfig(alpha=0.0),
     "MA default: jacrev on 32 states + temporal": ma.MAConfig(alpha=1.0),
     "MA default, feedback every 10 updates": ma.MAConfig(alpha=1.0, interval=10),
+    "MA in the actor loss alone: jacrev on 32 states + temporal": ma.MAConfig(
+        alpha=1.0, placement="actor_loss"
+    ),
+    "MA in the actor loss alone, feedback every 10 updates": ma.MAConfig(
+        alpha=1.0, placement="actor_loss", interval=10
+    ),
     "hutchinson 1 probe, 64 states": ma.MAConfig(alpha=1.0, estimator="hutchinson", subsample=64),
     "hutchinson 1 probe, full batch": ma.MAConfig(alpha=1.0, estimator="hutchinson", subsample=0),
     "jacfwd exact, 32 states": ma.MAConfig(alpha=1.0, estimator="jacfwd", subsample=32),

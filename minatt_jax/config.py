@@ -190,9 +190,12 @@ class TrainConfig:
         """Inverse of ``to_dict`` (as read back from ``config.json``; JSON lists become tuples).
 
         Reads the format before the one-field rule too: ``mb.agent_updates_per_step`` of a
-        model-based run becomes ``updates_per_step``.
+        model-based run becomes ``updates_per_step``; a run written before MA's placement was
+        recorded has MA in the actor loss (the default then).
         """
         d = copy.deepcopy(d)
+        if "ma" in d:
+            d["ma"].setdefault("placement", "actor_loss")
         legacy_updates = d.get("mb", {}).pop("agent_updates_per_step", None)
         if legacy_updates is not None and d.get("algo", "sac") != "sac":
             d["updates_per_step"] = legacy_updates

@@ -58,6 +58,7 @@ CASES = [
     (["train", "--set", "ma.nope=1"], "unknown"),
     (["train", "--set", "sac.hidden=abc"], "sac.hidden"),
     (["train", "--set", "ma.alpha"], "group.field=value"),
+    (["train", "--temporal", "rollout", "--out", "{MISSING}"], "choose placement 'actor_loss'"),
     (["train", "--task", "mass=-1"], "mass"),
     (["train", "--task", "crippled=nojoint"], "nojoint"),
     (["train", "--task", "foo=1"], "unknown field 'foo'"),

@@ -71,7 +71,9 @@ def test_resolve_fills_every_derived_default_once():
     assert resolve(mbmpo) == mbmpo  # idempotent
     explicit = resolve(with_overrides(PRESETS["cpu"], algo="mbmpo", task_set="nominal"))
     assert explicit.task_set == "nominal"  # a given value is kept
-    rollout = resolve(with_overrides(PRESETS["smoke"], ma_temporal="rollout"))
+    rollout = resolve(
+        with_overrides(PRESETS["smoke"], ma_temporal="rollout", ma_placement="actor_loss")
+    )
     assert rollout.ma.temporal_dt == pytest.approx(envs.make("hopper").dt)
     with pytest.raises(ValueError, match="rollout_batch"):
         resolve(with_overrides(PRESETS["smoke"], algo="mbpo", mb_rollout_batch=1))
@@ -84,6 +86,11 @@ def test_config_json_round_trip_and_the_previous_format():
     old.pop("updates_per_step")
     old["mb"]["agent_updates_per_step"] = 3  # the field before "one concept, one field"
     assert TrainConfig.from_dict(old).updates_per_step == 3
+    # MA's placement: the entropy-like reading by default (the reading study's choice); a run
+    # written before the placement was recorded had MA in the actor loss
+    assert c.ma.placement == "entropy"
+    old["ma"].pop("placement")
+    assert TrainConfig.from_dict(old).ma.placement == "actor_loss"
 
 
 def test_custom_tasks_combine_fields(make_env):
