@@ -234,8 +234,9 @@ def check_memory(trainer: Trainer, members: int) -> int:
     if available is not None and needed > 0.9 * available:
         raise RunError(
             f"{members} members need about {needed / 2**30:.1f} GiB ({per_member / 2**20:.0f} MiB "
-            f"of state each, held twice) but the device offers {available / 2**30:.1f} GiB: "
-            f"fewer members, or smaller buffers (--set buffer_size=..., "
+            f"of state each, held twice), more than 90% of the {available / 2**30:.1f} GiB "
+            f"the device has free now: free memory, fewer members, or smaller buffers "
+            f"(--set buffer_size=..., "
             f"--set mb.model_buffer_size=...)"
         )
     return per_member
