@@ -54,7 +54,7 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object
 MODULE_SECONDS = {
     "test_population.py": 400,
     "test_dreamer.py": 300,
-    "test_meta_test.py": 420,
+    "test_meta_test.py": 480,
     "test_reliability.py": 300,
     "test_train_program.py": 370,
     "test_model_based.py": 200,
