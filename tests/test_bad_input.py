@@ -58,7 +58,10 @@ CASES = [
     (["train", "--set", "ma.nope=1"], "unknown"),
     (["train", "--set", "sac.hidden=abc"], "sac.hidden"),
     (["train", "--set", "ma.alpha"], "group.field=value"),
-    (["train", "--temporal", "rollout", "--out", "{MISSING}"], "choose placement 'actor_loss'"),
+    (
+        ["train", "--temporal", "rollout", "--placement", "entropy", "--out", "{MISSING}"],
+        "choose placement 'actor_loss'",
+    ),
     (["train", "--task", "mass=-1"], "mass"),
     (["train", "--task", "crippled=nojoint"], "nojoint"),
     (["train", "--task", "foo=1"], "unknown field 'foo'"),
