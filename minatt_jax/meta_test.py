@@ -16,7 +16,7 @@ For every task of a task set (mass, crippled, slope, ...):
      ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step. The SAC inner step
      reads only the supports' states (collected real states) and the trained critic, so the
      model, refitted or not (``refit_model``), enters only through VPG's inner step or the
-     rollout reading of MA's temporal term;
+     rollout reading of MA's temporal term, and is refitted only for those;
    * dreamer: ``updates_per_step`` DreamerV3 updates (world model, actor, critic; MA included)
      on sequences sampled from the K collected episodes (its policy is recurrent: collection and
      evaluation run it through ``policies``, feedback with respect to the observation).
@@ -128,6 +128,13 @@ def _distance(a: Any, b: Any) -> float:
 
 
 _PROGRAMS: dict[str, Any] = {}
+
+
+def _adaptation_reads_model(config: Any) -> bool:
+    """Whether the model-based inner step reads the model's predictions: VPG's trajectories or
+    MA's rollout temporal term; the SAC inner step reads only the supports' (real) states."""
+    vpg = config.algo == "mbmpo" and config.mb.meta_inner == "vpg"
+    return vpg or config.ma.temporal == "rollout"
 
 
 def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
@@ -310,7 +317,7 @@ def meta_test(
         ens_state = None
         if model_based and settings.adapt_steps > 0:
             ens_state = parts["model"]
-            if settings.refit_model:
+            if settings.refit_model and _adaptation_reads_model(config):
                 ens_state = programs.refit(ens_state, data, valid, jax.random.fold_in(k_task, 2))
         for i in range(1, settings.adapt_steps + 1):
             k = jax.random.fold_in(k_task, 10 + i)

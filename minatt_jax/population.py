@@ -294,8 +294,7 @@ def train_population(
         except run_guard.RunLockedError as e:
             raise RunError(str(e)) from None
         except OSError as e:
-            raise RunError(f"cannot write the population into {out_dir}: "
-                           f"{e.strerror or e}") from None  # fmt: skip
+            raise _unwritable(out_dir, e) from None
         stop = held.enter_context(run_guard.StopSignals())
         _write_members([members[i] for i in own_members], [dirs[i] for i in own_members],
                        index_path, index if rank == 0 else None, resume)  # fmt: skip
@@ -340,7 +339,11 @@ def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
         if index is not None:
             write_json_atomic(index_path, index)
     except OSError as e:
-        raise RunError(f"cannot write the population into {out_dir}: {e.strerror or e}") from None
+        raise _unwritable(out_dir, e) from None
+
+
+def _unwritable(out_dir: str, error: OSError) -> RunError:
+    return RunError(f"cannot write the population into {out_dir}: {error.strerror or error}")
 
 
 def train_in_stages(
