@@ -96,9 +96,11 @@ def sources() -> list[dict[str, Any]]:
 
 def evidence(srcs: list[dict], env: str, phase: str, stage: int, alpha: float,
              metric: str) -> dict[str, Any] | None:  # fmt: skip
-    """Our MB-MPO and MA statistics for one table cell: the first source with this env and
-    alpha, at the paper's stage or (for the paper's last stage) at the source's last stage."""
-    for src in srcs:
+    """Our MB-MPO and MA statistics for one table cell, from the source with this env and alpha
+    that has the paper's stage or (for the paper's last stage) the latest stage; among those, the
+    one with the most seeds per arm (then the order of ``srcs``: the larger scale first)."""
+    found = []
+    for order, src in enumerate(srcs):
         tables = src["tables"].get(env)
         if tables is None or src["alpha"] != alpha or not tables.get(phase):
             continue
@@ -117,8 +119,9 @@ def evidence(srcs: list[dict], env: str, phase: str, stage: int, alpha: float,
             ma = rows["ma"].get(task, {}).get(f"{metric}_after")
         if not base or not ma or not base.get("n") or not ma.get("n"):
             continue
-        return {"source": src["tag"], "stage": int(key), "mbmpo": base, "ma": ma}
-    return None
+        rank = (int(key), min(base["n"], ma["n"]), -order)
+        found.append((rank, {"source": src["tag"], "stage": int(key), "mbmpo": base, "ma": ma}))
+    return max(found, key=lambda f: f[0])[1] if found else None
 
 
 def verdict(claimed: str, ev: dict[str, Any] | None, stage: int) -> tuple[str, str]:

@@ -97,3 +97,23 @@ def test_fewer_than_five_seeds_give_no_verdict(population):
     cell = cells["meta_training", 10_000, "return"]
     assert cell["verdict"] == "inconclusive at this scale"
     assert cell["reason"].startswith("4 seeds per arm; ours higher")
+
+
+def test_each_cell_takes_the_source_nearest_the_paper(population):
+    """A cell at the paper's stage takes the source with the most seeds there (5 before 4), the
+    paper's last stage the source with the latest stage (50K before 10K), whatever their order."""
+    configs, out_dir = population
+    five = meta_training.collect(configs, out_dir, [10_000], 1.0, ["mass", "crippled"])
+    four = meta_training.collect([c for c in configs if c.seed < 4], out_dir, [10_000], 1.0,
+                                 ["mass", "crippled"])  # fmt: skip
+    later = {"hopper": {phase: {"50000": by_stage["10000"]} for phase, by_stage in
+                        four["hopper"].items()}}  # fmt: skip
+    srcs = [{"tag": "four at 10K and 50K", "alpha": 1.0, "stages": [10_000, 50_000],
+             "tables": {"hopper": {p: {**four["hopper"][p], **later["hopper"][p]}
+                                   for p in four["hopper"]}}},
+            {"tag": "five at 10K", "alpha": 1.0, "stages": [10_000], "tables": five}]  # fmt: skip
+    for order in (srcs, srcs[::-1]):
+        at_10k = paper_claims.evidence(order, "hopper", "meta_training", 10_000, 1.0, "return")
+        assert at_10k["source"] == "five at 10K" and at_10k["ma"]["n"] == 5
+        final = paper_claims.evidence(order, "hopper", "meta_training", 200_000, 1.0, "return")
+        assert final["source"] == "four at 10K and 50K" and final["stage"] == 50_000
