@@ -55,10 +55,12 @@ class MAConfig:
       temporal: "parameter" (appendix reading, default) or "rollout".
       temporal_dt: dt of the temporal term; None (default) = 1 update for the parameter reading,
         the environment's dt for the rollout reading (``config.resolve`` fills it in).
-      placement: "actor_loss" (default: the actor loss alone), "entropy" (as SAC's entropy
-        term: in the actor loss, and alpha * penalty(s') subtracted from the soft value of the
-        next state in the critic target; the reading study's data favour it, README) or
-        "reward" (subtract alpha * penalty(s) from rewards).
+      placement: "entropy" (default: as SAC's entropy term, in the actor loss, and
+        alpha * penalty(s') subtracted from the soft value of the next state in the critic
+        target), "actor_loss" (the actor loss alone) or "reward" (subtract alpha * penalty(s)
+        from rewards). The default is the reading study's choice
+        (``experiments/results/reading_study_cpu_sac_20k.md``; the README says why); runs
+        written before the placement was recorded have "actor_loss" (``TrainConfig.from_dict``).
     """
 
     alpha: float = 0.0
@@ -70,7 +72,7 @@ class MAConfig:
     interval_scaling: bool = True
     temporal: str = "parameter"
     temporal_dt: float | None = None
-    placement: str = "actor_loss"
+    placement: str = "entropy"
 
     def __post_init__(self) -> None:
         checks = [
@@ -101,7 +103,7 @@ class MAConfig:
                 raise ValueError(message)
         if self.placement == "entropy" and self.temporal == "rollout":
             raise ValueError(
-                "placement 'entropy' takes the penalty at the next state alone: "
+                "placement 'entropy' (the default) takes the penalty at the next state alone: "
                 "it needs the parameter reading of the temporal term; with temporal 'rollout' "
                 "choose placement 'actor_loss' or 'reward'"
             )

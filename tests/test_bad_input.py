@@ -62,6 +62,7 @@ CASES = [
         ["train", "--temporal", "rollout", "--placement", "entropy", "--out", "{MISSING}"],
         "choose placement 'actor_loss'",
     ),
+    (["train", "--temporal", "rollout", "--out", "{MISSING}"], "(the default)"),
     (["train", "--task", "mass=-1"], "mass"),
     (["train", "--task", "crippled=nojoint"], "nojoint"),
     (["train", "--task", "foo=1"], "unknown field 'foo'"),

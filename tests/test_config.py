@@ -86,9 +86,11 @@ def test_config_json_round_trip_and_the_previous_format():
     old.pop("updates_per_step")
     old["mb"]["agent_updates_per_step"] = 3  # the field before "one concept, one field"
     assert TrainConfig.from_dict(old).updates_per_step == 3
-    # a run written before MA's placement was recorded had MA in the actor loss
-    old["ma"]["placement"] = "entropy"
-    assert TrainConfig.from_dict(old).ma.placement == "entropy"
+    # MA's placement: the entropy-like reading by default (the reading study's choice); a run
+    # written before the placement was recorded had MA in the actor loss
+    assert c.ma.placement == "entropy"
+    old["ma"]["placement"] = "reward"
+    assert TrainConfig.from_dict(old).ma.placement == "reward"
     old["ma"].pop("placement")
     assert TrainConfig.from_dict(old).ma.placement == "actor_loss"
 
