@@ -2,7 +2,8 @@
 
     python experiments/reading_study.py [--scale smoke|cpu|paper] [--envs hopper halfcheetah]
         [--algo mbmpo] [--seeds 0-4] [--alphas 0.01 0.05 1 5]
-        [--placements actor_loss reward entropy] [--steps N] [--runs runs/reading_study]
+        [--placements actor_loss reward entropy] [--normalize off on] [--steps N]
+        [--runs runs/reading_study]
 
 The paper puts the MA penalty in three places (added to the reward, to the policy loss, inside
 the SAC objective beside the entropy) and says rewards were normalized. Arms: every placement x
@@ -16,12 +17,17 @@ energy, mean +- std with 95% bootstrap intervals, and the difference from the ba
 interval (``minatt_jax.stats``). An arm goes the **paper's direction** when feedback and energy
 are lower (intervals below zero) and the return is not lower (its interval reaches zero or
 above); with fewer than 5 seeds in an arm or its baseline there is no verdict. Writes
-``experiments/results/reading_study_<scale>.{json,md}``.
+``experiments/results/reading_study_<scale>.{json,md}``, each arm with its seeds' values.
+
+Arms that the runs folder does not hold (``--normalize on`` alone, or runs trained on another
+machine and not copied here) keep their rows from the results file already written, marked
+"stored": the runs are git-ignored, the results are not, so a study can be finished in parts.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from typing import Any
 
@@ -40,7 +46,7 @@ def members(args: argparse.Namespace) -> list[Any]:
     environment and normalization (no penalty: the placement does not matter)."""
     out = []
     for env in args.envs:
-        for norm in (False, True):
+        for norm in (n == "on" for n in args.normalize):
             arms = [("actor_loss", 0.0)]
             arms += [(p, a) for p in args.placements for a in args.alphas if a > 0]
             for placement, alpha in arms:
@@ -77,7 +83,7 @@ def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
                                "step": min(s["step"] for s in seeds)}  # fmt: skip
         for m in METRICS:
             values = [s[m] for s in seeds]
-            row[m] = stats.summary(values)
+            row[m] = {**stats.summary(values), "values": values}
             if alpha > 0 and base:
                 ci = stats.bootstrap_diff_ci(values, [b[m] for b in base])
                 row[m]["diff_ci"] = ci
@@ -94,6 +100,22 @@ def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
     return rows
 
 
+def arm_key(row: dict[str, Any]) -> tuple:
+    return (row["env"], row["normalize_reward"], row["placement"], row["alpha"])
+
+
+def with_stored(rows: list[dict[str, Any]], path: str) -> list[dict[str, Any]]:
+    """``rows`` and, for arms they lack, the rows of the results file at ``path`` (marked
+    ``"stored": True``); an arm measured now replaces its stored row."""
+    if not os.path.exists(path):
+        return rows
+    with open(path) as f:
+        stored = json.load(f).get("arms", [])
+    fresh = {arm_key(r) for r in rows}
+    kept = [{**r, "stored": True} for r in stored if arm_key(r) not in fresh]
+    return sorted(rows + kept, key=arm_key)
+
+
 def markdown(rows: list[dict[str, Any]], header: str) -> str:
     def cell(s: dict[str, float]) -> str:
         text = f"{s['mean']:.4g} +- {s['std']:.2g} [{s['ci_low']:.4g}, {s['ci_high']:.4g}]"
@@ -108,9 +130,8 @@ def markdown(rows: list[dict[str, Any]], header: str) -> str:
         )
         lines.append(
             f"| {r['env']} | {'on' if r['normalize_reward'] else 'off'} | {r['placement']} | "
-            f"{r['alpha']:g} | {r['seeds']} | {r['step']} | "
-            + " | ".join(cell(r[m]) for m in METRICS)
-            + f" | {verdict} |"
+            f"{r['alpha']:g} | {r['seeds']}{' (stored)' if r.get('stored') else ''} | "
+            f"{r['step']} | " + " | ".join(cell(r[m]) for m in METRICS) + f" | {verdict} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -123,6 +144,8 @@ def main() -> None:
     parser.add_argument("--seeds", default="0-4")
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.01, 0.05, 1.0, 5.0])
     parser.add_argument("--placements", nargs="+", default=["actor_loss", "reward", "entropy"])
+    parser.add_argument("--normalize", nargs="+", default=["off", "on"], choices=["off", "on"],
+                        help="reward normalization arms to train (default: both)")  # fmt: skip
     parser.add_argument("--steps", type=int, default=None,
                         help="env steps per member (default: the scale's preset)")  # fmt: skip
     parser.add_argument("--runs", default="runs/reading_study")
@@ -138,17 +161,20 @@ def main() -> None:
             population.train_population(configs, out_dir, SWEPT, resume=resume)
         except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
             raise SystemExit(f"reading_study: {e}") from None
-    rows = analyse(configs, out_dir)
+    rows = with_stored(
+        analyse(configs, out_dir), os.path.join(RESULTS, f"reading_study_{tag}.json")
+    )
     command = ("python experiments/reading_study.py --scale "
                f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "
                f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
-               f"--placements {' '.join(args.placements)}"
+               f"--placements {' '.join(args.placements)} --normalize {' '.join(args.normalize)}"
                + (f" --steps {args.steps}" if args.steps else ""))  # fmt: skip
     result = {**xt.provenance(command), "arms": rows}
     header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "
               "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "
               "interval of the mean] (direction against alpha = 0 with the same reward "
-              "normalization, when its interval excludes zero).")  # fmt: skip
+              "normalization, when its interval excludes zero). Seeds marked (stored): the arm's "
+              "row as an earlier run wrote it (its runs are not in this runs folder).")  # fmt: skip
     text = markdown(rows, header)
     xt.write_study(RESULTS, f"reading_study_{tag}", result, text)
     print(text)
