@@ -106,11 +106,11 @@ def test_each_cell_takes_the_source_nearest_the_paper(population):
     five = meta_training.collect(configs, out_dir, [10_000], 1.0, ["mass", "crippled"])
     four = meta_training.collect([c for c in configs if c.seed < 4], out_dir, [10_000], 1.0,
                                  ["mass", "crippled"])  # fmt: skip
-    later = {"hopper": {phase: {"50000": by_stage["10000"]} for phase, by_stage in
-                        four["hopper"].items()}}  # fmt: skip
+    # the four-seed tables again at 50K
+    four_later = {"hopper": {phase: {**by_stage, "50000": by_stage["10000"]}
+                             for phase, by_stage in four["hopper"].items()}}  # fmt: skip
     srcs = [{"tag": "four at 10K and 50K", "alpha": 1.0, "stages": [10_000, 50_000],
-             "tables": {"hopper": {p: {**four["hopper"][p], **later["hopper"][p]}
-                                   for p in four["hopper"]}}},
+             "tables": four_later},
             {"tag": "five at 10K", "alpha": 1.0, "stages": [10_000], "tables": five}]  # fmt: skip
     for order in (srcs, srcs[::-1]):
         at_10k = paper_claims.evidence(order, "hopper", "meta_training", 10_000, 1.0, "return")
