@@ -67,20 +67,32 @@ def final_values(run_dir: str) -> dict[str, float] | None:
     return {"step": records[-1]["step"], **{m: records[-1][m] for m in METRICS}}
 
 
+ARM_FIELDS = ("env", "normalize_reward", "placement", "alpha")
+
+
+def arm_of(c: Any) -> dict[str, Any]:
+    """The fields that name a member's arm (every seed of an arm shares them)."""
+    return {"env": c.env, "normalize_reward": c.sac.normalize_reward,
+            "placement": c.ma.placement, "alpha": c.ma.alpha}  # fmt: skip
+
+
+def arm_key(row: dict[str, Any]) -> tuple:
+    return tuple(row[f] for f in ARM_FIELDS)
+
+
 def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
     """One row per arm: statistics over seeds and the difference from the baseline."""
     arms: dict[tuple, list[dict[str, float]]] = {}
     for c in configs:
         values = final_values(os.path.join(out_dir, population.member_name(c, SWEPT)))
         if values is not None and values["step"] >= c.total_steps:  # finished members only
-            key = (c.env, c.sac.normalize_reward, c.ma.placement, c.ma.alpha)
-            arms.setdefault(key, []).append(values)
+            arms.setdefault(arm_key(arm_of(c)), []).append(values)
     rows = []
-    for (env, norm, placement, alpha), seeds in sorted(arms.items()):
-        base = arms.get((env, norm, "actor_loss", 0.0), [])
-        row: dict[str, Any] = {"env": env, "normalize_reward": norm, "placement": placement,
-                               "alpha": alpha, "seeds": len(seeds),
+    for key, seeds in sorted(arms.items()):
+        row: dict[str, Any] = {**dict(zip(ARM_FIELDS, key, strict=True)), "seeds": len(seeds),
                                "step": min(s["step"] for s in seeds)}  # fmt: skip
+        alpha = row["alpha"]
+        base = arms.get(arm_key({**row, "placement": "actor_loss", "alpha": 0.0}), [])
         for m in METRICS:
             values = [s[m] for s in seeds]
             row[m] = {**stats.summary(values), "values": values}
@@ -98,10 +110,6 @@ def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
             )
         rows.append(row)
     return rows
-
-
-def arm_key(row: dict[str, Any]) -> tuple:
-    return (row["env"], row["normalize_reward"], row["placement"], row["alpha"])
 
 
 def with_stored(rows: list[dict[str, Any]], path: str) -> list[dict[str, Any]]:
