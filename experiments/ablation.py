@@ -19,7 +19,7 @@ from typing import Any
 
 from minatt_jax import experiment_tables as xt
 from minatt_jax import paper_numbers, population
-from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 SWEPT = ["env", "ma.mode", "ma.alpha"]
@@ -29,7 +29,7 @@ MODES = ("full", "jacobian", "temporal")
 def members(args: argparse.Namespace) -> list[Any]:
     arms = [(mode, args.alpha) for mode in MODES] + [("full", 0.0)]
     return [resolve(with_overrides(
-        PRESETS[args.scale], env=env, algo="mbmpo", seed=seed, ma_mode=mode, ma_alpha=alpha,
+        xt.study_preset(args), env=env, algo="mbmpo", seed=seed, ma_mode=mode, ma_alpha=alpha,
         ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
         total_steps=args.steps,
     )) for env in args.envs for mode, alpha in arms

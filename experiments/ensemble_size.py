@@ -23,14 +23,14 @@ import numpy as np
 
 from minatt_jax import experiment_tables as xt
 from minatt_jax import paper_numbers, plots, population
-from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 SWEPT = ["env", "model.ensemble_size", "mb.rollout_batch"]
 
 
 def members(args: argparse.Namespace) -> list[Any]:
-    base = PRESETS[args.scale]
+    base = xt.study_preset(args)
     arms = [(m, None) for m in args.sizes]
     arms += [(None, n) for n in args.trajectories if n != base.mb.rollout_batch]
     out = []
@@ -102,7 +102,7 @@ def main() -> None:
     args = parser.parse_args()
     configs = members(args)
     steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT)
-    base = PRESETS[args.scale]
+    base = xt.study_preset(args)
     baseline = f"M={base.model.ensemble_size} N={base.mb.rollout_batch}"
     tables: dict[str, Any] = {}
     curves: dict[str, Any] = {}

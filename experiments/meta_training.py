@@ -39,7 +39,7 @@ import numpy as np
 
 from minatt_jax import experiment_tables as xt
 from minatt_jax import meta_test, paper_numbers, plots, population, runner
-from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 METRICS = paper_numbers.METRICS
@@ -63,7 +63,7 @@ def members(args: argparse.Namespace) -> list[Any]:
         for _, algo, alpha in arms(args.alpha):
             for seed in population.parse_seeds(args.seeds):
                 out.append(resolve(with_overrides(
-                    PRESETS[args.scale], env=env, algo=algo, seed=seed, ma_alpha=alpha,
+                    xt.study_preset(args), env=env, algo=algo, seed=seed, ma_alpha=alpha,
                     ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
                     total_steps=args.steps,
                 )))  # fmt: skip

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -149,7 +150,7 @@ def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None
 
 def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: str) -> None:
     """The options every study script takes: scale, length, environments, seeds, alpha, the
-    reading of MA, --collect-only and where the runs go."""
+    reading of MA, configuration overrides, --collect-only and where the runs go."""
     from minatt_jax.config import PRESETS
 
     parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
@@ -162,6 +163,22 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
     parser.add_argument("--collect-only", action="store_true",
                         help="tabulate what the runs hold now, without training")  # fmt: skip
     parser.add_argument("--runs", default=runs)
+    parser.add_argument("--set", action="append", default=[], dest="overrides",
+                        metavar="FIELD=VALUE",
+                        help="override a configuration field for every member, e.g. "
+                             "buffer_size=10000 (repeatable)")  # fmt: skip
+
+
+def study_preset(args: argparse.Namespace) -> Any:
+    """The scale's preset with the ``--set`` overrides: what every member starts from. A bad
+    override exits 2 with one line."""
+    from minatt_jax.config import PRESETS, apply_overrides
+
+    try:
+        return apply_overrides(PRESETS[args.scale], args.overrides)
+    except ValueError as e:
+        print(f"{os.path.basename(sys.argv[0])}: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def study_tag(args: argparse.Namespace) -> str:
@@ -175,7 +192,8 @@ def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str
             + (f" --steps {args.steps}" if args.steps else "")
             + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
             + (f" --placement {args.placement}" if args.placement else "")
-            + (" --normalize-reward" if args.normalize_reward else "") + extra)  # fmt: skip
+            + (" --normalize-reward" if args.normalize_reward else "")
+            + "".join(f" --set {o}" for o in getattr(args, "overrides", [])) + extra)  # fmt: skip
 
 
 def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,

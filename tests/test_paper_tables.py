@@ -52,3 +52,18 @@ def test_arm_summary_gives_the_direction_only_when_the_interval_excludes_zero() 
     assert mixed["vs_baseline"] == "unresolved"
     assert "vs_baseline" not in xt.arm_summary([1.0, 2.0])
     assert xt.cell(None) == "-" and "n=5" in xt.cell(lower)
+
+
+def test_study_overrides_reach_every_member_and_the_provenance() -> None:
+    """``--set`` changes the preset every member starts from and is part of the command that
+    reproduces the table; a bad override exits 2 with one line (the memory refusal advises it)."""
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    xt.add_study_arguments(parser, envs=["hopper"], runs="runs/x")
+    args = parser.parse_args(["--scale", "smoke", "--set", "buffer_size=1234"])
+    assert xt.study_preset(args).buffer_size == 1234
+    assert xt.study_command("x.py", args).endswith(" --set buffer_size=1234")
+    with pytest.raises(SystemExit) as stop:
+        xt.study_preset(parser.parse_args(["--set", "no_such_field=1"]))
+    assert stop.value.code == 2
