@@ -163,7 +163,7 @@ class Program:
         self.trainer: Trainer = make_train(self.config)
         self.members = configs
         t = self.trainer
-        self.bytes_per_member = check_memory(t, len(configs))
+        self.bytes_per_member = state_bytes(t)
 
         def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
             return with_data(t.parts["init_state"](key), values)
@@ -225,10 +225,9 @@ def device_memory_bytes() -> int | None:
         return None
 
 
-def check_memory(trainer: Trainer, members: int) -> int:
-    """Bytes per member; RunError before compiling when the population cannot fit (the state
-    is held about twice while a chunk runs: input and output buffers)."""
-    per_member = state_bytes(trainer)
+def check_memory(per_member: int, members: int) -> None:
+    """RunError before compiling when ``members`` states of ``per_member`` bytes cannot fit
+    (the state is held about twice while a chunk runs: input and output buffers)."""
     available = device_memory_bytes()
     needed = 2 * per_member * members
     if available is not None and needed > 0.9 * available:
@@ -239,7 +238,12 @@ def check_memory(trainer: Trainer, members: int) -> int:
             f"(--set buffer_size=..., "
             f"--set mb.model_buffer_size=...)"
         )
-    return per_member
+
+
+def _finished(program: Program, dirs: list[str]) -> bool:
+    """Whether every member of the group already has a checkpoint at its length."""
+    target = max(c.total_steps for c in program.members)
+    return all((step := checkpoint.latest_step(d)) is not None and step >= target for d in dirs)
 
 
 def member(states: Any, i: int) -> Any:
@@ -283,6 +287,9 @@ def train_population(
     mine = [share(indices, rank, processes) for indices in index["groups"]]
     # Built first: a population that cannot fit is refused before anything is written.
     programs = [Program([members[i] for i in own]) if own else None for own in mine]
+    for own, program in zip(mine, programs, strict=True):  # groups already trained need none
+        if program is not None and not (resume and _finished(program, [dirs[i] for i in own])):
+            check_memory(program.bytes_per_member, len(program.members))
     own_members = [i for own in mine for i in own]
     last: list[dict[str, Any]] = [{} for _ in members]
     lock = ".lock" if processes == 1 else f".lock-process{rank}"
@@ -379,7 +386,7 @@ def _train_group(
     if len(steps) != 1:
         raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
     step = steps.pop()
-    if step is not None and step >= max(c.total_steps for c in program.members):
+    if step is not None and _finished(program, dirs):
         log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
         return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]
     states = program.init()
