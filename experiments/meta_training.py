@@ -120,6 +120,11 @@ def _read(path: str) -> dict[str, Any]:
         return json.load(f)
 
 
+def task_sets(variants: list[str]) -> list[str]:
+    """The variants, and their average where there are several (one is its own average)."""
+    return [*variants, "average"] if len(variants) > 1 else list(variants)
+
+
 def markdown(result: dict[str, Any], alpha: float, variants: list[str]) -> str:
     lines = [
         f"# Meta-training and meta-testing tables ({result['tag']})",
@@ -151,7 +156,7 @@ def markdown(result: dict[str, Any], alpha: float, variants: list[str]) -> str:
                   "| stage | tasks | metric | SAC | MB-MPO | MB-MPO + MA | paper MB-MPO | "
                   "paper MA |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for step, rows in env_out["meta_testing"].items():
-            for name in [*variants, "average"]:
+            for name in task_sets(variants):
                 for m in METRICS:
                     ours = []
                     for a in ("sac", "mbmpo", "ma"):
@@ -169,7 +174,7 @@ def markdown(result: dict[str, Any], alpha: float, variants: list[str]) -> str:
 def plot_adaptation(result: dict[str, Any], env: str, variants: list[str], path: str) -> None:
     """Return over adaptation steps (mean +- std over seeds), one panel per task set."""
     plt = plots._pyplot()
-    names = [*variants, "average"]
+    names = task_sets(variants)
     fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
     tests = result["tables"][env]["meta_testing"]
     last = max(tests, key=int)
