@@ -193,7 +193,7 @@ def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str
             + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
             + (f" --placement {args.placement}" if args.placement else "")
             + (" --normalize-reward" if args.normalize_reward else "")
-            + "".join(f" --set {o}" for o in getattr(args, "overrides", [])) + extra)  # fmt: skip
+            + "".join(f" --set {o}" for o in args.overrides) + extra)  # fmt: skip
 
 
 def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,

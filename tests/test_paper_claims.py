@@ -39,9 +39,9 @@ def population(tmp_path):
     """hopper at 10K, 5 seeds per arm: MA has a higher return (+100), a 10x lower feedback and
     a lower energy than MB-MPO; adaptation raises MA's return by 20 on both task sets."""
     rng = np.random.default_rng(0)
-    args = meta_training.argparse.Namespace(
-        scale="smoke", envs=["hopper"], alpha=1.0, seeds="0-4", placement=None,
-        normalize_reward=None, steps=10_000)  # fmt: skip
+    parser = meta_training.argparse.ArgumentParser()
+    meta_training.xt.add_study_arguments(parser, envs=["hopper"], runs=str(tmp_path))
+    args = parser.parse_args(["--scale", "smoke", "--steps", "10000"])  # 5 seeds, alpha 1
     configs = meta_training.members(args)
     for c in configs:
         arm = "sac" if c.algo == "sac" else ("ma" if c.ma.alpha else "mbmpo")
