@@ -28,8 +28,9 @@ MODES = ("full", "jacobian", "temporal")
 
 def members(args: argparse.Namespace) -> list[Any]:
     arms = [(mode, args.alpha) for mode in MODES] + [("full", 0.0)]
+    base = xt.study_preset(args)
     return [resolve(with_overrides(
-        xt.study_preset(args), env=env, algo="mbmpo", seed=seed, ma_mode=mode, ma_alpha=alpha,
+        base, env=env, algo="mbmpo", seed=seed, ma_mode=mode, ma_alpha=alpha,
         ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
         total_steps=args.steps,
     )) for env in args.envs for mode, alpha in arms

@@ -58,12 +58,12 @@ def arm_of(config: Any) -> str:
 
 
 def members(args: argparse.Namespace) -> list[Any]:
-    out = []
+    out, base = [], xt.study_preset(args)
     for env in args.envs:
         for _, algo, alpha in arms(args.alpha):
             for seed in population.parse_seeds(args.seeds):
                 out.append(resolve(with_overrides(
-                    xt.study_preset(args), env=env, algo=algo, seed=seed, ma_alpha=alpha,
+                    base, env=env, algo=algo, seed=seed, ma_alpha=alpha,
                     ma_placement=args.placement, sac_normalize_reward=args.normalize_reward,
                     total_steps=args.steps,
                 )))  # fmt: skip

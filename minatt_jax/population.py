@@ -162,6 +162,7 @@ class Program:
         self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha})
         self.trainer: Trainer = make_train(self.config)
         self.members = configs
+        self.length = max(c.total_steps for c in configs)  # env steps the group trains to
         t = self.trainer
         self.bytes_per_member = state_bytes(t)
 
@@ -242,8 +243,7 @@ def check_memory(per_member: int, members: int) -> None:
 
 def _finished(program: Program, dirs: list[str]) -> bool:
     """Whether every member of the group already has a checkpoint at its length."""
-    target = max(c.total_steps for c in program.members)
-    return all((step := checkpoint.latest_step(d)) is not None and step >= target for d in dirs)
+    return all((s := checkpoint.latest_step(d)) is not None and s >= program.length for d in dirs)
 
 
 def member(states: Any, i: int) -> Any:
@@ -386,7 +386,7 @@ def _train_group(
     if len(steps) != 1:
         raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
     step = steps.pop()
-    if step is not None and _finished(program, dirs):
+    if step is not None and step >= program.length:
         log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
         return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]
     states = program.init()
