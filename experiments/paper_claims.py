@@ -366,7 +366,8 @@ def main() -> None:
         *cost_claims(),
     ]  # fmt: skip
     result = {"date": datetime.date.today().isoformat(),
-              "sources": [s["tag"] for s in srcs], "headline": headline,
+              "sources": [f"{s['tag']} ({', '.join(sorted(s['tables']))})" for s in srcs],
+              "headline": headline,
               "reading": reading_study(), "cells": cells}  # fmt: skip
     runner.write_json_atomic(os.path.join(RESULTS, "paper_claims.json"), result)
     text = markdown(result)

@@ -27,6 +27,7 @@ members exactly as single runs; the population directory holds ``population.json
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import os
 import time
@@ -251,6 +252,13 @@ def member(states: Any, i: int) -> Any:
     return jax.tree.map(lambda x: x[i], states)
 
 
+@functools.partial(jax.jit, donate_argnums=0)
+def _set_member(states: Any, one: Any, i: jax.Array) -> Any:
+    """``states`` with member ``i`` replaced by ``one``, in place (the stacked states are donated):
+    a resume holds the population once plus one member, not the restored list and its stack."""
+    return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), states, one)
+
+
 def stack(states: list[Any]) -> Any:
     """Member states stacked on a new leading axis."""
     return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
@@ -321,20 +329,19 @@ def train_population(
 
 def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
                    index: dict[str, Any] | None, resume: bool) -> None:  # fmt: skip
-    """Checks a resumed population's members against ``members`` (only the length may change,
-    as for single runs, and is rewritten), or writes a new population's member configurations
-    and (``index`` given: process 0) its index."""
+    """Checks a resumed population's members against ``members`` (only the length and the chunk
+    length may change, as for single runs, and are rewritten), or writes a new population's
+    member configurations and (``index`` given: process 0) its index."""
     out_dir = os.path.dirname(index_path)
     if resume:
         if index is not None and not os.path.exists(index_path):
             raise RunError(f"{out_dir} holds no population to resume (no population.json)")
         stored = [load_config(d) for d in dirs]
         for member, old, run_dir in zip(members, stored, dirs, strict=True):
-            same_length = replace_fields(member, {"total_steps": old.total_steps})
-            if same_length.to_dict() != old.to_dict():
+            if runner.with_stored_schedule(member, old).to_dict() != old.to_dict():
                 raise RunError(f"{run_dir} was made with other settings; see its config.json")
         for member, old, run_dir in zip(members, stored, dirs, strict=True):
-            if old.total_steps != member.total_steps:
+            if member.to_dict() != old.to_dict():
                 write_json_atomic(os.path.join(run_dir, "config.json"), member.to_dict())
         return
     if index is not None and os.path.exists(index_path):
@@ -389,16 +396,19 @@ def _train_group(
     if step is not None and step >= program.length:
         log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
         return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]
+    if step is not None:
+        runner.check_on_chunk_grid(step, config.eval_every, os.path.dirname(dirs[0]))
     states = program.init()
     if resume:
         if step is not None:
-            restored = []
-            for i, d in enumerate(dirs):
+            for i, d in enumerate(dirs):  # into the stacked states, one member at a time
                 try:
-                    restored.append(checkpoint.restore(d, member(states, i), step)[1])
+                    one = checkpoint.restore(d, member(states, i), step)[1]
                 except checkpoint.CheckpointError as e:
                     raise RunError(str(e)) from None
-            states = program.place(stack(restored))
+                states = _set_member(states, one, jnp.int32(i))
+                del one
+            states = program.place(states)
         for d in dirs:
             runner.keep_metrics_until(d, step or 0)
         log(f"resumed {len(dirs)} members at env step {step or 0}")

@@ -155,16 +155,38 @@ def _changed_data(stored: TrainConfig, config: TrainConfig) -> dict[str, Any]:
             if k != "seed" and config_field(config, k) != config_field(stored, k)}  # fmt: skip
 
 
+# Fields a resume may change besides the data fields: how long to train, and how long a chunk
+# is (evaluation and checkpoint every ``eval_every`` env steps). Every schedule reads the env-step
+# counter and the random key lives in the state, so other chunks cut the same trajectory at other
+# points (tests/test_training.py checks the states bit for bit).
+RESUMABLE_FIELDS = ("total_steps", "eval_every")
+
+
+def with_stored_schedule(config: TrainConfig, stored: TrainConfig) -> TrainConfig:
+    """``config`` with ``stored``'s ``RESUMABLE_FIELDS``: equal to ``stored`` when a resume may
+    go on from it."""
+    return replace_fields(config, {k: config_field(stored, k) for k in RESUMABLE_FIELDS})
+
+
+def check_on_chunk_grid(step: int, eval_every: int, run_dir: str) -> None:
+    """Refuses to resume a checkpoint that is not on the new chunk grid (its chunks would pass
+    the asked length and skip the evaluation stages)."""
+    if step % eval_every:
+        raise RunError(f"{run_dir} is at step {step}, not a multiple of eval_every {eval_every}; "
+                       "resume it with an eval_every that divides it")  # fmt: skip
+
+
 def _check_resumable(stored: TrainConfig, config: TrainConfig, run_dir: str) -> None:
-    """Refuses a resume whose configuration differs in more than the length and data fields."""
+    """Refuses a resume whose configuration differs in more than ``RESUMABLE_FIELDS`` and the
+    data fields."""
     as_stored = {k: config_field(stored, k) for k in _changed_data(stored, config)}
-    same = replace_fields(config, {"total_steps": stored.total_steps, **as_stored})
+    same = replace_fields(with_stored_schedule(config, stored), as_stored)
     if same.to_dict() != stored.to_dict():
         differ = [k for k, v in same.to_dict().items() if v != stored.to_dict()[k]]
         raise RunError(
             f"{run_dir} was made with other settings ({', '.join(differ)} differ); resume takes "
-            f"them from its config.json (only the length and {', '.join(DATA_FIELDS[1:])} may "
-            "change)"
+            f"them from its config.json (only the length, eval_every and "
+            f"{', '.join(DATA_FIELDS[1:])} may change)"
         )
 
 
@@ -219,6 +241,7 @@ def _train(
         if step > config.planned_steps:
             raise RunError(f"{run_dir} is already at step {step}; ask for at least that many "
                            "steps to resume it")  # fmt: skip
+        check_on_chunk_grid(step, config.eval_every, run_dir)
         changed = _changed_data(stored, config)
         if changed:
             state = with_data(state, data_values(config))
