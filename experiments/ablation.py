@@ -2,13 +2,15 @@
 
     python experiments/ablation.py [--scale smoke|cpu|paper] [--steps N] [--envs halfcheetah]
         [--seeds 0-4] [--alpha 1] [--placement P] [--normalize-reward] [--collect-only]
-        [--runs runs/ablation]
+        [--runs runs/ablation] [--reuse runs/meta_training/halfcheetah/cpu_10k]
 
 Members: MB-MPO with MA at ``--alpha`` in each mode (``ma.mode``: full = both terms, jacobian =
 the feedback term alone, a state-smoothness regularizer; temporal = the feedforward term alone)
 and MB-MPO without MA, every seed, one population, trained to the paper's stages that the scale
 reaches (resumable: run it again). Each mode is compared with full MA (the paper's claim: full
-MA has the highest reward). Writes ``experiments/results/ablation_<tag>.{json,md}``.
+MA has the highest reward). The full and alpha-0 arms are meta_training's MB-MPO + MA and
+MB-MPO members: ``--reuse`` its runs folder to read them instead of training them again.
+Writes ``experiments/results/ablation_<tag>.{json,md}``.
 """
 
 from __future__ import annotations
@@ -66,13 +68,14 @@ def markdown(result: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ablation")
+    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ablation", reuse=True)
     args = parser.parse_args()
     configs = members(args)
-    steps, tag, out_dir = xt.train_study("ablation", args, configs, SWEPT)
+    reused = xt.reused_runs(args, configs)
+    steps, tag, out_dir = xt.train_study("ablation", args, configs, SWEPT, reused=reused)
     tables = {}
     for env in args.envs:
-        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
+        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused)
         tables[env] = {str(s): xt.training_rows(dirs, s, baseline="full") for s in steps}
     command = xt.study_command("ablation.py", args)
     result = {"tag": tag, **xt.provenance(command), "alpha": args.alpha, "stages": steps,

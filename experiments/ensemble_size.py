@@ -96,18 +96,19 @@ def markdown(result: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ensemble_size")
+    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ensemble_size", reuse=True)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 5, 15, 20])
     parser.add_argument("--trajectories", type=int, nargs="+", default=[16, 128, 256, 512])
     args = parser.parse_args()
     configs = members(args)
-    steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT)
+    reused = xt.reused_runs(args, configs)
+    steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT, reused=reused)
     base = xt.study_preset(args)
     baseline = f"M={base.model.ensemble_size} N={base.mb.rollout_batch}"
     tables: dict[str, Any] = {}
     curves: dict[str, Any] = {}
     for env in args.envs:
-        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
+        dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused)
         known = baseline if baseline in dirs else None
         tables[env] = {str(s): xt.training_rows(dirs, s, baseline=known) for s in steps}
         curves[env] = {arm: xt.curves(d) for arm, d in dirs.items()}

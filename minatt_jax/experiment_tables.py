@@ -148,9 +148,11 @@ def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None
     return rows
 
 
-def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: str) -> None:
+def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: str,
+                        reuse: bool = False) -> None:  # fmt: skip
     """The options every study script takes: scale, length, environments, seeds, alpha, the
-    reading of MA, configuration overrides, --collect-only and where the runs go."""
+    reading of MA, configuration overrides, --collect-only and where the runs go; with
+    ``reuse``, ``--reuse FOLDER`` (``reused_runs``)."""
     from minatt_jax.config import PRESETS
 
     parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
@@ -167,6 +169,12 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
                         metavar="FIELD=VALUE",
                         help="override a configuration field for every member, e.g. "
                              "buffer_size=10000 (repeatable)")  # fmt: skip
+    if reuse:
+        parser.add_argument("--reuse", action="append", default=[], metavar="FOLDER",
+                            help="another study's runs (e.g. runs/meta_training/halfcheetah/"
+                                 "cpu_10k): its members with this study's settings that "
+                                 "reached every stage are read, not trained again "
+                                 "(repeatable)")  # fmt: skip
 
 
 def study_preset(args: argparse.Namespace) -> Any:
@@ -193,19 +201,51 @@ def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str
             + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
             + (f" --placement {args.placement}" if args.placement else "")
             + (" --normalize-reward" if args.normalize_reward else "")
-            + "".join(f" --set {o}" for o in args.overrides) + extra)  # fmt: skip
+            + "".join(f" --set {o}" for o in args.overrides)
+            + "".join(f" --reuse {f}" for f in getattr(args, "reuse", [])) + extra)  # fmt: skip
 
 
 def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,
-                arm_of: Callable[[Any], str]) -> dict[str, list[str]]:  # fmt: skip
-    """The run directories of ``env``'s members, grouped by ``arm_of(config)``."""
+                arm_of: Callable[[Any], str],
+                reused: dict[int, str] | None = None) -> dict[str, list[str]]:  # fmt: skip
+    """The run directories of ``env``'s members (``reused`` ones where they were found),
+    grouped by ``arm_of(config)``."""
     from minatt_jax.population import member_name
 
     out: dict[str, list[str]] = {}
-    for c in configs:
+    for i, c in enumerate(configs):
         if c.env == env:
-            out.setdefault(arm_of(c), []).append(os.path.join(out_dir, member_name(c, swept)))
+            d = (reused or {}).get(i) or os.path.join(out_dir, member_name(c, swept))
+            out.setdefault(arm_of(c), []).append(d)
     return out
+
+
+def reused_runs(args: argparse.Namespace, configs: list[Any]) -> dict[int, str]:
+    """Members (index -> run directory) already trained in one of the ``--reuse`` folders: a
+    run whose config.json has the member's settings (its length and chunk length aside) and an
+    evaluation at every stage of this study. A folder that is not one exits 2."""
+    candidates = []
+    for folder in getattr(args, "reuse", []):
+        if not os.path.isdir(folder):
+            print(f"{os.path.basename(sys.argv[0])}: --reuse {folder}: no such folder",
+                  file=sys.stderr)  # fmt: skip
+            raise SystemExit(2)
+        for name in sorted(os.listdir(folder)):
+            run_dir = os.path.join(folder, name)
+            if os.path.isfile(os.path.join(run_dir, "config.json")):
+                try:
+                    candidates.append((run_dir, runner.load_config(run_dir)))
+                except runner.RunError as e:  # not reusable, said once
+                    print(f"note: --reuse skips {run_dir}: {e}", file=sys.stderr)
+    steps = stages(configs[0].total_steps, configs[0].eval_every)
+    found = {}
+    for i, c in enumerate(configs):
+        for d, stored in candidates:
+            if (runner.with_stored_schedule(c, stored).to_dict() == stored.to_dict()
+                    and all(record_at(d, s) for s in steps)):  # fmt: skip
+                found[i] = d
+                break
+    return found
 
 
 def write_study(results: str, name: str, result: dict[str, Any], text: str) -> None:
@@ -217,17 +257,22 @@ def write_study(results: str, name: str, result: dict[str, Any], text: str) -> N
 
 def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: list[str],
                 at_stage: Callable[[int, list[str]], None] | None = None,
-                ) -> tuple[list[int], str, str]:  # fmt: skip
-    """Trains (or resumes) a study's population stage by stage unless ``--collect-only``;
-    returns (stages, tag, runs folder). A stop or refusal exits with one line."""
+                reused: dict[int, str] | None = None) -> tuple[list[int], str, str]:  # fmt: skip
+    """Trains (or resumes) a study's population stage by stage unless ``--collect-only``, but
+    the ``reused`` members; returns (stages, tag, runs folder). A stop or refusal exits with one
+    line."""
     from minatt_jax.population import train_in_stages
 
     steps = stages(configs[0].total_steps, configs[0].eval_every)
     tag = study_tag(args)
     out_dir = os.path.join(args.runs, tag)
+    to_train = [c for i, c in enumerate(configs) if i not in (reused or {})]
+    if reused:
+        print(f"{name}: {len(reused)} members read from --reuse, {len(to_train)} to train",
+              flush=True)  # fmt: skip
     try:
-        if not args.collect_only:
-            train_in_stages(configs, out_dir, swept, steps, at_stage)
+        if not args.collect_only and to_train:
+            train_in_stages(to_train, out_dir, swept, steps, at_stage)
     except runner.RunError as e:
         raise SystemExit(f"{name}: {e}") from None
     return steps, tag, out_dir

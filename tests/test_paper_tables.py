@@ -67,3 +67,59 @@ def test_study_overrides_reach_every_member_and_the_provenance() -> None:
     with pytest.raises(SystemExit) as stop:
         xt.study_preset(parser.parse_args(["--set", "no_such_field=1"]))
     assert stop.value.code == 2
+
+
+def _fake_run(run_dir, config, steps: list[int]) -> None:
+    """A run directory holding ``config`` and an evaluation record at each of ``steps``."""
+    import json
+
+    os.makedirs(run_dir)
+    with open(os.path.join(run_dir, "config.json"), "w") as f:
+        json.dump(config.to_dict(), f)
+    with open(os.path.join(run_dir, "metrics.jsonl"), "w") as f:
+        f.writelines(json.dumps({"step": s, **dict.fromkeys(paper_numbers.METRICS, float(s))})
+                     + "\n" for s in steps)  # fmt: skip
+
+
+def test_reuse_reads_only_members_with_the_same_settings_at_every_stage(tmp_path, capsys):
+    """``--reuse`` takes another study's member only when its settings match (length and chunk
+    length aside) and it was evaluated at every stage; the table reads it there, the provenance
+    names the folder, and a missing folder exits 2."""
+    import argparse
+    import sys
+
+    from minatt_jax.config import replace_fields
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+    import ablation
+
+    parser = argparse.ArgumentParser()
+    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/x", reuse=True)
+    other = tmp_path / "meta_training"
+    args = parser.parse_args(["--scale", "smoke", "--seeds", "0", "--reuse", str(other)])
+    configs = ablation.members(args)  # full, jacobian, temporal, none (alpha 0)
+    stage = xt.stages(configs[0].total_steps, configs[0].eval_every)[-1]
+    # full: longer, other chunks -> reused; jacobian: another buffer; temporal: not at the
+    # stage; none: reused; and a corrupt one beside them.
+    _fake_run(
+        other / "a",
+        replace_fields(configs[0], {"total_steps": 2 * stage, "eval_every": 100}),
+        [stage, 2 * stage],
+    )
+    _fake_run(other / "b", replace_fields(configs[1], {"buffer_size": 777}), [stage])
+    _fake_run(other / "c", configs[2], [stage // 2])
+    _fake_run(other / "d", configs[3], [stage])
+    os.makedirs(other / "e")
+    (other / "e" / "config.json").write_text("{")  # fmt: skip
+    reused = xt.reused_runs(args, configs)
+    assert reused == {0: str(other / "a"), 3: str(other / "d")}
+    assert "--reuse skips" in capsys.readouterr().err
+    dirs = xt.dirs_by_arm(configs, "runs/x/smoke", ablation.SWEPT, "halfcheetah",
+                          ablation.arm_of, reused)  # fmt: skip
+    assert dirs["full"] == [str(other / "a")] and dirs["none"] == [str(other / "d")]
+    assert dirs["jacobian"][0].startswith("runs/x/smoke/")
+    assert xt.training_rows(dirs, stage)["full"]["return"]["mean"] == stage
+    assert f"--reuse {other}" in xt.study_command("ablation.py", args)
+    with pytest.raises(SystemExit) as stop:
+        xt.reused_runs(parser.parse_args(["--reuse", str(tmp_path / "nothing")]), configs)
+    assert stop.value.code == 2
