@@ -1,15 +1,18 @@
 """The HalfCheetah ablation (Table 1): full MA against Jacobian-only and temporal-only.
 
     python experiments/ablation.py [--scale smoke|cpu|paper] [--steps N] [--envs halfcheetah]
-        [--seeds 0-4] [--alpha 1] [--placement P] [--normalize-reward] [--collect-only]
-        [--runs runs/ablation] [--reuse runs/meta_training/halfcheetah/cpu_10k]
+        [--seeds 0-4] [--alpha 1] [--arms full jacobian temporal none] [--placement P]
+        [--normalize-reward] [--collect-only] [--runs runs/ablation]
+        [--reuse runs/meta_training/halfcheetah/cpu_10k]
 
 Members: MB-MPO with MA at ``--alpha`` in each mode (``ma.mode``: full = both terms, jacobian =
 the feedback term alone, a state-smoothness regularizer; temporal = the feedforward term alone)
-and MB-MPO without MA, every seed, one population, trained to the paper's stages that the scale
-reaches (resumable: run it again). Each mode is compared with full MA (the paper's claim: full
-MA has the highest reward). The full and alpha-0 arms are meta_training's MB-MPO + MA and
-MB-MPO members: ``--reuse`` its runs folder to read them instead of training them again.
+and MB-MPO without MA (arm "none"), every seed, trained to the paper's stages that the scale
+reaches (resumable: run it again). The modes are data (0/1 term weights), so all arms are one
+population in one compiled program. ``--arms`` keeps some (the paper's Table 1 has the first
+three). Each arm is compared with full MA (the paper's claim: full MA has the highest
+reward). The full and alpha-0 arms are meta_training's MB-MPO + MA and MB-MPO members:
+``--reuse`` its runs folder to read them instead of training them again.
 Writes ``experiments/results/ablation_<tag>.{json,md}``.
 """
 
@@ -29,7 +32,8 @@ MODES = ("full", "jacobian", "temporal")
 
 
 def members(args: argparse.Namespace) -> list[Any]:
-    arms = [(mode, args.alpha) for mode in MODES] + [("full", 0.0)]
+    arms = [(mode, args.alpha) for mode in MODES if mode in args.arms]
+    arms += [("full", 0.0)] if "none" in args.arms else []
     base = xt.study_preset(args)
     return [resolve(with_overrides(
         base, env=env, algo="mbmpo", seed=seed, ma_mode=mode, ma_alpha=alpha,
@@ -66,10 +70,21 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's options and ``--arms``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/ablation", reuse=True)
+    parser.add_argument("--arms", nargs="+", default=[*MODES, "none"], choices=[*MODES, "none"],
+                        help="the arms to train and tabulate (default: all four; each is "
+                             "compared with full, which must be among them)")  # fmt: skip
+    return parser
+
+
+def main() -> None:
+    parser = build_parser()
     args = parser.parse_args()
+    if "full" not in args.arms:
+        parser.error("--arms must include full: every arm is compared with it")
     configs = members(args)
     reused = xt.reused_runs(args, configs)
     steps, tag, out_dir = xt.train_study("ablation", args, configs, SWEPT, reused=reused)

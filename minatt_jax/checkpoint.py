@@ -208,6 +208,15 @@ def _step(run_dir: str, step: int | None) -> int:
     return step
 
 
+# Items added to the train state after checkpoints were written without them, and the value
+# they restore as there: the MA term weights (a program computed only its run's mode's terms).
+ADDED_LATER = {"ma_terms": 1.0}
+
+
+def _added_later(name: str) -> bool:
+    return name.rsplit("/", 1)[-1] in ADDED_LATER
+
+
 def _check_items(
     run_dir: str, step: int, stored: dict[str, Any], wanted: dict[str, Any], prefix: str
 ) -> None:
@@ -215,7 +224,7 @@ def _check_items(
     if prefix:
         stored = {k: v for k, v in stored.items() if k == prefix or k.startswith(prefix + "/")}
     wanted = {k: v for k, v in wanted.items() if np.size(v) > 0}
-    missing = sorted(set(wanted) - set(stored))
+    missing = sorted(k for k in set(wanted) - set(stored) if not _added_later(k))
     extra = sorted(set(stored) - set(wanted))
     shapes = sorted(k for k in set(wanted) & set(stored)
                     if list(np.shape(wanted[k])) != stored[k]["shape"])  # fmt: skip
@@ -243,7 +252,7 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
     for prefix, template in like.items():
         items = {f"{prefix}/{k}" if k else prefix: v for k, v in named_leaves(template).items()}
         _check_items(run_dir, step, stored, items, prefix)
-        wanted.update({k: v for k, v in items.items() if np.size(v) > 0})
+        wanted.update({k: v for k, v in items.items() if np.size(v) > 0 and k in stored})
     # Shapes and dtypes only: copying the templates (replay buffers) to the host is not needed.
     abstract = _nest({k: jax.ShapeDtypeStruct(np.shape(v), v.dtype) for k, v in wanted.items()})
     restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), abstract)
@@ -263,23 +272,27 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
             f"{str(e).splitlines()[0][:200] if str(e) else ''})"
         ) from None
     values = _flatten(restored.state)
+
+    def leaf_value(name: str, template_leaf: Any) -> Any:
+        if name in values:
+            return jax.numpy.asarray(values[name])
+        if _added_later(name) and name not in stored:
+            return jax.numpy.full_like(template_leaf, ADDED_LATER[name.rsplit("/", 1)[-1]])
+        return template_leaf  # an empty item
+
     out = {}
     for prefix, template in like.items():
         leaves, treedef = jax.tree.flatten(template)
         names = [f"{prefix}/{k}" if k else prefix for k in named_leaves(template)]
         out[prefix] = jax.tree.unflatten(
-            treedef,
-            [
-                jax.numpy.asarray(values[n]) if n in values else leaf
-                for n, leaf in zip(names, leaves, strict=True)
-            ],  # fmt: skip
+            treedef, [leaf_value(n, leaf) for n, leaf in zip(names, leaves, strict=True)]
         )
     return step, out
 
 
 def restore(run_dir: str, like: Any, step: int | None = None) -> tuple[int, Any]:
     """Restores checkpoint ``step`` (default: the latest) whole, into the structure of ``like``
-    (a train state): every item must match."""
+    (a train state): every item must match (items ``ADDED_LATER`` may be absent)."""
     step = _step(run_dir, step)
     stored = describe(run_dir, step)["items"]
     _check_items(run_dir, step, stored, named_leaves(like), "")

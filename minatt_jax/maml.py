@@ -79,7 +79,7 @@ def vpg_loss(sac: SAC, gamma: float) -> Callable[..., jax.Array]:
             pen, _ = ma.penalty(
                 sac.regularizer.ma_config, sac.control, actor_params, data.obs[0], key,
                 prev_params=agent.prev_actor_params, next_obs=data.next_obs[0],
-                update_step=agent.updates, alpha=agent.ma_alpha,
+                update_step=agent.updates, alpha=agent.ma_alpha, terms=agent.ma_terms,
             )  # fmt: skip
             pg = pg + pen
         return pg

@@ -126,6 +126,25 @@ class MAConfig:
         return self.active and self.mode in ("full", "temporal")
 
 
+def term_weights(mode: str) -> tuple[float, float]:
+    """(feedback, temporal) weights of a mode: 1 where it uses the term. Populations carry them
+    as data, so members in different modes share one program (which computes the union)."""
+    return float(mode in ("full", "jacobian")), float(mode in ("full", "temporal"))
+
+
+def union_mode(configs: list[MAConfig]) -> str:
+    """The mode whose terms cover every config's (what a program shared by them computes)."""
+    feedback = any(c.uses_feedback for c in configs)
+    temporal = any(c.uses_temporal for c in configs)
+    return {(True, True): "full", (True, False): "jacobian", (False, True): "temporal",
+            (False, False): "none"}[(feedback, temporal)]  # fmt: skip
+
+
+def _scaled(term: jax.Array, weight: jax.Array | None) -> jax.Array:
+    """``term`` times its 0/1 mode weight (untouched without one: a weight of 1 is exact)."""
+    return term if weight is None else weight * term
+
+
 def control_jacobian(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
     """du/dx (n, act_dim, obs_dim) at each state of a batch ``obs`` (n, obs_dim), exactly."""
     jac = jax.jacfwd if mode == "jacfwd" else jax.jacrev
@@ -237,11 +256,14 @@ def penalty(
     update_step: jax.Array | int = 0,
     controls: jax.Array | None = None,
     alpha: jax.Array | float | None = None,
+    terms: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted MA penalty and its parts ``{'feedback', 'temporal', 'penalty'}``.
 
     ``alpha`` (a traced value allowed) replaces ``config.alpha`` as the weight: populations sweep
-    it as data. Which terms are computed stays a property of the config (``config.active``).
+    it as data. ``terms`` (traced, ``term_weights(mode)``) weighs the (feedback, temporal) terms
+    by 0 or 1: a member's mode as data. Which terms are computed stays a property of the config
+    (``config.active``, ``config.mode``: the union of the members' modes).
 
     ``prev_params`` is needed for the parameter reading of the temporal term, ``next_obs`` for the
     rollout reading; ``update_step`` selects the updates that compute the feedback term when
@@ -251,6 +273,7 @@ def penalty(
     zero = jnp.zeros((), jnp.float32)
     feedback, temporal, total = zero, zero, zero
     alpha = config.alpha if alpha is None else alpha
+    w_feedback, w_temporal = (None, None) if terms is None else (terms[0], terms[1])
     key_probe = key
     k = config.subsample
     if 0 < k < obs.shape[0]:
@@ -268,18 +291,18 @@ def penalty(
 
         if config.interval == 1:
             feedback = feedback_fn()
-            weight = alpha
+            weight = _scaled(alpha, w_feedback)
         else:
             due = jnp.asarray(update_step) % config.interval == 0
             feedback = jax.lax.cond(due, feedback_fn, lambda: zero)
             scale = config.interval if config.interval_scaling else 1
-            weight = jnp.where(due, alpha * scale, 0.0)
+            weight = jnp.where(due, _scaled(alpha, w_feedback) * scale, 0.0)
         total = total + weight * feedback
     if config.uses_temporal:
         temporal = jnp.mean(
             _temporal_per_state(config, u, params, obs, prev_params, next_obs, controls)
         )
-        total = total + alpha * temporal
+        total = total + _scaled(alpha, w_temporal) * temporal
     return total, {"feedback": feedback, "temporal": temporal, "penalty": total}
 
 
@@ -329,35 +352,40 @@ def per_state_penalty(
     prev_params: Any = None,
     next_obs: jax.Array | None = None,
     alpha: jax.Array | float | None = None,
+    terms: jax.Array | None = None,
 ) -> jax.Array:
     """alpha * (feedback + temporal) for every state of the batch (no subsample, no interval);
-    ``alpha`` replaces ``config.alpha`` when given.
+    ``alpha`` replaces ``config.alpha`` when given, ``terms`` weighs the terms (``penalty``).
 
     Used by the reward-shaping placement, which subtracts it from each transition's reward.
     """
+    w_feedback, w_temporal = (None, None) if terms is None else (terms[0], terms[1])
     total = jnp.zeros(obs.shape[:1], jnp.float32)
     if config.uses_feedback:
-        total = total + _feedback_per_state(config, u, params, obs, key)
+        total = total + _scaled(_feedback_per_state(config, u, params, obs, key), w_feedback)
     if config.uses_temporal:
-        total = total + _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
+        temporal = _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
+        total = total + _scaled(temporal, w_temporal)
     return (config.alpha if alpha is None else alpha) * total
 
 
 class Regularizer(NamedTuple):
     """The smoothness penalties of a control law ``u``, as a learner needs them.
 
-    * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls, alpha)`` ->
+    * ``actor_penalty(params, obs, next_obs, keys, prev_params, update_step, controls, alpha,
+      terms)`` ->
       (penalty, metrics): what the actor objective adds (MA with ``placement="actor_loss"`` and
       CAPS); ``keys`` = (MA probe key, CAPS noise key); metrics named ``ma_*`` and ``caps_*``;
-    * ``next_value_penalty(params, next_obs, key, prev_params, alpha)`` -> per-state penalty at
-      the next states, subtracted from the soft value in the critic target with
+    * ``next_value_penalty(params, next_obs, key, prev_params, alpha, terms)`` -> per-state
+      penalty at the next states, subtracted from the soft value in the critic target with
       ``placement="entropy"`` (zero otherwise), as SAC subtracts ent * log pi(a'|s');
-    * ``shape_rewards(params, obs, next_obs, reward, key, prev_params, alpha)`` -> rewards: the
-      batch transform of ``placement="reward"`` (alpha * penalty per state subtracted, no gradient);
-      the identity otherwise.
+    * ``shape_rewards(params, obs, next_obs, reward, key, prev_params, alpha, terms)`` -> rewards:
+      the batch transform of ``placement="reward"`` (alpha * penalty per state subtracted, no
+      gradient); the identity otherwise.
 
-    ``alpha`` (traced values allowed) replaces the config's weight: a population's members carry
-    their own alpha as data in the agent state.
+    ``alpha`` (traced values allowed) replaces the config's weight and ``terms`` weighs the
+    (feedback, temporal) terms (``term_weights``): a population's members carry their own alpha
+    and mode as data in the agent state.
     """
 
     actor_penalty: Callable[..., tuple[jax.Array, dict[str, jax.Array]]]
@@ -376,16 +404,15 @@ def make_regularizer(
     in_reward = ma_config.active and ma_config.placement == "reward"
     in_value = ma_config.active and ma_config.placement == "entropy"
 
-    def actor_penalty(
-        params, obs, next_obs, keys, prev_params=None, update_step=0, controls=None, alpha=None
-    ):
+    def actor_penalty(params, obs, next_obs, keys, prev_params=None, update_step=0,
+                      controls=None, alpha=None, terms=None):  # fmt: skip
         k_ma, k_caps = keys
         total = jnp.zeros((), jnp.float32)
         metrics: dict[str, jax.Array] = {}
         if in_actor:
             pen, parts = penalty(ma_config, u, params, obs, k_ma, prev_params=prev_params,
                                  next_obs=next_obs, update_step=update_step,
-                                 controls=controls, alpha=alpha)  # fmt: skip
+                                 controls=controls, alpha=alpha, terms=terms)  # fmt: skip
             total = total + pen
             metrics.update({f"ma_{k}": v for k, v in parts.items()})
         if caps_config.active:
@@ -394,18 +421,20 @@ def make_regularizer(
             metrics.update(parts)
         return total, metrics
 
-    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None, alpha=None):
+    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None, alpha=None,
+                      terms=None):  # fmt: skip
         if not in_reward:
             return reward
         shaping = per_state_penalty(ma_config, u, params, obs, key, prev_params=prev_params,
-                                    next_obs=next_obs, alpha=alpha)  # fmt: skip
+                                    next_obs=next_obs, alpha=alpha, terms=terms)  # fmt: skip
         return reward - jax.lax.stop_gradient(shaping)
 
-    def next_value_penalty(params, next_obs, key, prev_params=None, alpha=None):
+    def next_value_penalty(params, next_obs, key, prev_params=None, alpha=None, terms=None):
         if not in_value:
             return jnp.zeros(next_obs.shape[:1], jnp.float32)
         per_state = per_state_penalty(ma_config, u, params, next_obs, key,
-                                      prev_params=prev_params, alpha=alpha)  # fmt: skip
+                                      prev_params=prev_params, alpha=alpha,
+                                      terms=terms)  # fmt: skip
         return jax.lax.stop_gradient(per_state)
 
     return Regularizer(actor_penalty, shape_rewards, next_value_penalty, ma_config, caps_config)

@@ -2,7 +2,8 @@
 
 A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
 values). Members that differ only in fields that are *data* (``DATA_FIELDS``: the seed, the MA
-weight, the SAC learning rates, MB-MPO's inner step size) share one program: their train states
+weight, the SAC learning rates, MB-MPO's inner step size; and the MA mode, full / Jacobian-only /
+temporal-only, as 0/1 term weights, but for DreamerV3) share one program: their train states
 are stacked on a leading axis and every iteration is vmapped over it (``training.make_train``'s
 ``run_chunk``), so sweeping those values never recompiles. Members that differ in anything else
 (network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups, compiled once
@@ -39,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from minatt_jax import checkpoint, run_guard, runner
+from minatt_jax import min_attention as ma
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
 from minatt_jax.evaluation import deterministic_of, make_evaluator, summarize
 from minatt_jax.run_files import (
@@ -118,10 +120,13 @@ def _split_values(text: str) -> list[str]:
 
 def program_config(config: TrainConfig) -> TrainConfig:
     """The member's configuration with its data fields at fixed values: equal for members that
-    can share one compiled program."""
-    return replace_fields(config, {"seed": 0, "ma.alpha": 0.0, "sac.actor_lr": 1.0,
-                                   "sac.critic_lr": 1.0, "sac.entropy_lr": 1.0,
-                                   "mb.meta_inner_lr": 0.0})  # fmt: skip
+    can share one compiled program. The MA mode is data too (``data_values``' ``"ma.terms"``)
+    but for DreamerV3, whose agent state does not carry it."""
+    fixed = {"seed": 0, "ma.alpha": 0.0, "sac.actor_lr": 1.0, "sac.critic_lr": 1.0,
+             "sac.entropy_lr": 1.0, "mb.meta_inner_lr": 0.0}  # fmt: skip
+    if config.algo != "dreamer":
+        fixed["ma.mode"] = "full"
+    return replace_fields(config, fixed)
 
 
 def groups(members: list[TrainConfig]) -> list[list[int]]:
@@ -158,9 +163,13 @@ class Program:
 
     def __init__(self, members: list[TrainConfig]) -> None:
         configs = members
-        # MA terms are computed when any member uses them; alpha = 0 members weigh them by 0.
+        # MA terms are computed when any member uses them; alpha = 0 members weigh them by 0,
+        # members whose mode leaves a term out weigh it by 0 (their "ma.terms").
         alpha = max(c.ma.alpha for c in configs)
-        self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha})
+        modes = {c.ma.mode for c in configs}
+        mode = modes.pop() if len(modes) == 1 else ma.union_mode([c.ma for c in configs])
+        self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha,
+                                                                 "ma.mode": mode})  # fmt: skip
         self.trainer: Trainer = make_train(self.config)
         self.members = configs
         self.length = max(c.total_steps for c in configs)  # env steps the group trains to

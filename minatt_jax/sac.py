@@ -50,6 +50,10 @@ class SACState:
     prev_actor_params: Any  # parameters before the last actor update (MA temporal term)
     updates: jax.Array
     ma_alpha: jax.Array  # the MA weight: data, so a population sweeps it without recompiling
+    # (feedback, temporal) 0/1 weights of the member's MA mode (ma.term_weights): data, so
+    # full / Jacobian-only / temporal-only members share one program (checkpoints from before
+    # it exist restore it as (1, 1): their program computed only their mode's terms)
+    ma_terms: jax.Array
 
 
 class SAC(NamedTuple):
@@ -117,6 +121,7 @@ def make_sac(
             prev_actor_params=jax.tree.map(jnp.copy, actor_params),
             updates=jnp.zeros((), jnp.int32),
             ma_alpha=jnp.asarray(ma_config.alpha, jnp.float32),
+            ma_terms=jnp.asarray(ma.term_weights(ma_config.mode), jnp.float32),
         )
 
     def shape_rewards(state: SACState, batch: Transitions, key: jax.Array) -> Transitions:
@@ -124,7 +129,7 @@ def make_sac(
         _, k_shape = jax.random.split(key)
         reward = regularizer.shape_rewards(
             state.actor_params, batch.obs, batch.next_obs, batch.reward, k_shape,
-            state.prev_actor_params, state.ma_alpha,
+            state.prev_actor_params, state.ma_alpha, state.ma_terms,
         )  # fmt: skip
         return batch.replace(reward=reward)
 
@@ -136,8 +141,9 @@ def make_sac(
         ent = jnp.exp(state.log_entropy_coef)
         # The entropy-like placement of MA: its penalty at s' is paid like ent * log pi(a'|s').
         ma_next = regularizer.next_value_penalty(
-            state.actor_params, batch.next_obs, k_value, state.prev_actor_params, state.ma_alpha
-        )
+            state.actor_params, batch.next_obs, k_value, state.prev_actor_params,
+            state.ma_alpha, state.ma_terms,
+        )  # fmt: skip
         v_next = jnp.min(q_next, axis=0) - ent * next_logp - ma_next
         target = batch.reward + config.gamma * (1.0 - batch.terminal) * v_next
         q = critic.apply(critic_params, batch.obs, batch.action)
@@ -154,7 +160,7 @@ def make_sac(
         pen, reg_metrics = regularizer.actor_penalty(
             actor_params, batch.obs, batch.next_obs, (k_ma, k_caps),
             prev_params=state.prev_actor_params, update_step=state.updates,
-            controls=jnp.tanh(mean), alpha=state.ma_alpha,
+            controls=jnp.tanh(mean), alpha=state.ma_alpha, terms=state.ma_terms,
         )  # fmt: skip
         metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp), **reg_metrics}
         return sac_loss + pen, (metrics, jnp.mean(logp))

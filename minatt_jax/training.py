@@ -41,6 +41,7 @@ from flax import struct
 
 import minatt_jax.envs as envs
 from minatt_jax import acting, imagination, replay
+from minatt_jax import min_attention as ma
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.config import TrainConfig
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, make_ensemble
@@ -115,6 +116,7 @@ class TrainState:
 
         agent = self.agent.replace(
             ma_alpha=values["ma.alpha"],
+            ma_terms=values["ma.terms"],
             actor_opt=lr(self.agent.actor_opt, values["sac.actor_lr"]),
             critic_opt=lr(self.agent.critic_opt, values["sac.critic_lr"]),
             entropy_opt=lr(self.agent.entropy_opt, values["sac.entropy_lr"]),
@@ -169,8 +171,13 @@ def config_field(config: TrainConfig, dotted: str) -> Any:
 
 
 def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
-    """The member's values of the data fields that live in the train state (float32)."""
-    return {k: np.float32(config_field(config, k)) for k in DATA_FIELDS if k != "seed"}
+    """The member's values of the data fields that live in the train state (float32), and
+    ``"ma.terms"``: its MA mode's (feedback, temporal) weights (``min_attention.term_weights``),
+    data to a population whose members differ in mode (a run's own program computes its mode's
+    terms alone, so a resume does not change the mode)."""
+    values = {k: np.float32(config_field(config, k)) for k in DATA_FIELDS if k != "seed"}
+    values["ma.terms"] = np.asarray(ma.term_weights(config.ma.mode), np.float32)
+    return values
 
 
 def with_data(state: Any, values: dict[str, jax.Array]) -> Any:

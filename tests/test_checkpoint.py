@@ -92,3 +92,23 @@ def test_checkpoint_without_manifest_is_reported(run, tmp_path):
     shutil.rmtree(os.path.join(copy, "checkpoints", "300", "manifest"))
     with pytest.raises(checkpoint.CheckpointError, match="no manifest"):
         checkpoint.describe(copy)
+
+
+def test_a_checkpoint_from_before_the_ma_term_weights_restores_them_as_ones(run, tmp_path):
+    """Checkpoints written before ``ma_terms`` existed restore it as (1, 1), the weights their
+    own program applied (it computed only its mode's terms); any other missing item is an
+    error."""
+    like = train_module.make_train(resolve(runner.load_config(run))).init(jax.random.PRNGKey(0))
+    _, full = checkpoint.restore(run, like)
+    agent = full.agent
+    older = {f: getattr(agent, f) for f in agent.__dataclass_fields__ if f != "ma_terms"}
+    old_dir = str(tmp_path / "old")
+    checkpoint.save(old_dir, 300, {"agent": older})
+    zeros = jax.tree.map(np.zeros_like, agent)  # as meta-test's template: shapes only
+    _, parts = checkpoint.restore_items(old_dir, {"agent": zeros})
+    np.testing.assert_array_equal(parts["agent"].ma_terms, [1.0, 1.0])
+    np.testing.assert_array_equal(parts["agent"].ma_alpha, agent.ma_alpha)
+    del older["ma_alpha"]
+    checkpoint.save(str(tmp_path / "older"), 300, {"agent": older})
+    with pytest.raises(checkpoint.CheckpointError, match="missing: agent/ma_alpha"):
+        checkpoint.restore_items(str(tmp_path / "older"), {"agent": zeros})

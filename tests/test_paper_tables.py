@@ -85,7 +85,6 @@ def test_reuse_reads_only_members_with_the_same_settings_at_every_stage(tmp_path
     """``--reuse`` takes another study's member only when its settings match (length and chunk
     length aside) and it was evaluated at every stage; the table reads it there, the provenance
     names the folder, and a missing folder exits 2."""
-    import argparse
     import sys
 
     from minatt_jax.config import replace_fields
@@ -93,10 +92,10 @@ def test_reuse_reads_only_members_with_the_same_settings_at_every_stage(tmp_path
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
     import ablation
 
-    parser = argparse.ArgumentParser()
-    xt.add_study_arguments(parser, envs=["halfcheetah"], runs="runs/x", reuse=True)
+    parser = ablation.build_parser()
     other = tmp_path / "meta_training"
-    args = parser.parse_args(["--scale", "smoke", "--seeds", "0", "--reuse", str(other)])
+    args = parser.parse_args(["--scale", "smoke", "--seeds", "0", "--runs", "runs/x",
+                              "--reuse", str(other)])  # fmt: skip
     configs = ablation.members(args)  # full, jacobian, temporal, none (alpha 0)
     stage = xt.stages(configs[0].total_steps, configs[0].eval_every)[-1]
     # full: longer, other chunks -> reused; jacobian: another buffer; temporal: not at the

@@ -82,6 +82,35 @@ def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
 
 
 @pytest.mark.slow
+def test_ma_modes_share_one_program_and_each_member_equals_its_single_run():
+    """Full / Jacobian-only / temporal-only / none are data (0/1 term weights): one program for
+    all four, computing both terms, and each member trains as its mode's own program does
+    (which computes only its terms)."""
+    modes = ["full", "jacobian", "temporal", "none"]
+    members = population.expand(with_overrides(ONE_CHUNK, ma_alpha=1.0), [0],
+                                [f"ma.mode={','.join(modes)}"])  # fmt: skip
+    assert population.groups(members) == [[0, 1, 2, 3]]
+    program = population.Program(members)
+    assert program.config.ma.mode == "full"
+    states, metrics = program.chunk(program.init())
+    assert program.chunk._cache_size() == 1
+    for i, member in enumerate(members):
+        alone = train_module.make_train(resolve(member))
+        single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(0)))
+        for key in ("critic_loss", "actor_loss", "train_episode_return"):
+            np.testing.assert_allclose(metrics[key][i], single_metrics[key], rtol=1e-4,
+                                       err_msg=f"{modes[i]}: {key}")  # fmt: skip
+        np.testing.assert_allclose(
+            jax.tree.leaves(states.agent.actor_params)[0][i],
+            jax.tree.leaves(single.agent.actor_params)[0], rtol=1e-4, atol=1e-6,
+            err_msg=modes[i],
+        )  # fmt: skip
+    # The modes do differ: the penalty each member pays is its own.
+    penalties = np.asarray(metrics["ma_penalty"])
+    assert penalties[3] == 0 and len(set(np.round(penalties[:3], 6))) == 3
+
+
+@pytest.mark.slow
 def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
     calls = []
     real_make = train_module.make_ensemble
