@@ -117,3 +117,28 @@ def test_each_cell_takes_the_source_nearest_the_paper(population):
         assert at_10k["source"] == "five at 10K" and at_10k["ma"]["n"] == 5
         final = paper_claims.evidence(order, "hopper", "meta_training", 200_000, 1.0, "return")
         assert final["source"] == "four at 10K and 50K" and final["stage"] == 50_000
+
+
+def test_the_ablation_claim_reads_the_latest_stage_and_needs_five_seeds(tmp_path, monkeypatch):
+    """Full MA above both single-term arms at 200K with 5 seeds reproduces Table 1's claim; the
+    same result at 3 seeds is inconclusive; no ablation file is 'not tested'."""
+    xt = paper_claims.xt
+    monkeypatch.setattr(paper_claims, "RESULTS", str(tmp_path))
+    assert paper_claims.ablation_claim()["verdict"] == "not tested"
+
+    def write(tag: str, seeds: int, step: int) -> None:
+        rng = np.random.default_rng(seeds)
+        means = {"full": 900.0, "jacobian": 600.0, "temporal": 650.0}
+        values = {a: list(m + 10 * rng.standard_normal(seeds)) for a, m in means.items()}
+        rows = {a: {"return": xt.arm_summary(v, None if a == "full" else values["full"]),
+                    "seeds": seeds} for a, v in values.items()}  # fmt: skip
+        with open(tmp_path / f"ablation_{tag}.json", "w") as f:
+            json.dump({"tag": tag, "tables": {"halfcheetah": {str(step): rows}}}, f)
+
+    write("small", 3, 200_000)
+    claim = paper_claims.ablation_claim()
+    assert claim["verdict"] == "inconclusive at this scale" and "3 seeds" in claim["reason"]
+    write("paper", 5, 200_000)
+    claim = paper_claims.ablation_claim()
+    assert claim["verdict"] == "reproduced", claim
+    assert "(paper)" in claim["ours"] and "jacobian 6" in claim["ours"]
