@@ -193,6 +193,15 @@ def _ours_text(r: dict[str, Any]) -> str:
     )
 
 
+def combined(verdicts: list[str]) -> str:
+    """One verdict from several: not reproduced if any is, reproduced if all are."""
+    if "not reproduced" in verdicts:
+        return "not reproduced"
+    if verdicts and all(x == "reproduced" for x in verdicts):
+        return "reproduced"
+    return "inconclusive at this scale"
+
+
 def variance_claim(srcs: list[dict]) -> dict[str, Any]:
     """'Significant reduction in variance': std over seeds of the final return, MA / MB-MPO."""
     parts, verdicts = [], []
@@ -207,14 +216,7 @@ def variance_claim(srcs: list[dict]) -> dict[str, Any]:
         enough = ev["stage"] == max(paper_numbers.STAGES) and ev["ma"]["n"] >= xt.MIN_SEEDS
         verdicts.append("reproduced" if enough and hi < 1 else
                         "not reproduced" if enough and lo > 1 else "inconclusive")  # fmt: skip
-    if not parts:
-        v = "not tested"
-    elif "not reproduced" in verdicts:
-        v = "not reproduced"
-    elif verdicts and all(x == "reproduced" for x in verdicts):
-        v = "reproduced"
-    else:
-        v = "inconclusive at this scale"
+    v = combined(verdicts) if parts else "not tested"
     return {"claim": "MA reduces the variance of the return over seeds (abstract, Fig. 2a)",
             "paper": "e.g. HalfCheetah 200K std 318 -> 128, Humanoid 177 -> 38",
             "ours": "; ".join(parts) or "-", "verdict": v,
@@ -330,12 +332,7 @@ def ablation_claim() -> dict[str, Any]:
                      f"[{ours['diff_ci'][0]:.3g}, {ours['diff_ci'][1]:.3g}])")  # fmt: skip
         verdicts.append(v)
         reasons.append(f"{arm}: {reason}")
-    if "not reproduced" in verdicts:
-        v = "not reproduced"
-    elif verdicts and all(x == "reproduced" for x in verdicts):
-        v = "reproduced"
-    else:
-        v = "inconclusive at this scale"
+    v = combined(verdicts)
     return {"claim": name, "paper": paper,
             "ours": f"halfcheetah {xt.stage_label(step)} ({tag}): " + ", ".join(parts),
             "verdict": v, "reason": "; ".join(reasons)}  # fmt: skip
