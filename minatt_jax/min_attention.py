@@ -129,7 +129,13 @@ class MAConfig:
 def term_weights(mode: str) -> tuple[float, float]:
     """(feedback, temporal) weights of a mode: 1 where it uses the term. Populations carry them
     as data, so members in different modes share one program (which computes the union)."""
-    return float(mode in ("full", "jacobian")), float(mode in ("full", "temporal"))
+    config = MAConfig(alpha=1.0, mode=mode)
+    return float(config.uses_feedback), float(config.uses_temporal)
+
+
+def _split(terms: jax.Array | None) -> tuple[jax.Array | None, jax.Array | None]:
+    """The (feedback, temporal) weights of ``terms`` (``term_weights``), or none to apply."""
+    return (None, None) if terms is None else (terms[0], terms[1])
 
 
 def union_mode(configs: list[MAConfig]) -> str:
@@ -273,7 +279,7 @@ def penalty(
     zero = jnp.zeros((), jnp.float32)
     feedback, temporal, total = zero, zero, zero
     alpha = config.alpha if alpha is None else alpha
-    w_feedback, w_temporal = (None, None) if terms is None else (terms[0], terms[1])
+    w_feedback, w_temporal = _split(terms)
     key_probe = key
     k = config.subsample
     if 0 < k < obs.shape[0]:
@@ -359,7 +365,7 @@ def per_state_penalty(
 
     Used by the reward-shaping placement, which subtracts it from each transition's reward.
     """
-    w_feedback, w_temporal = (None, None) if terms is None else (terms[0], terms[1])
+    w_feedback, w_temporal = _split(terms)
     total = jnp.zeros(obs.shape[:1], jnp.float32)
     if config.uses_feedback:
         total = total + _scaled(_feedback_per_state(config, u, params, obs, key), w_feedback)

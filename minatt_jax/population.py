@@ -120,12 +120,9 @@ def _split_values(text: str) -> list[str]:
 
 def program_config(config: TrainConfig) -> TrainConfig:
     """The member's configuration with its data fields at fixed values: equal for members that
-    can share one compiled program. The MA mode is data too (``data_values``' ``"ma.terms"``)
-    but for DreamerV3, whose agent state does not carry it."""
-    fixed = {"seed": 0, "ma.alpha": 0.0, "sac.actor_lr": 1.0, "sac.critic_lr": 1.0,
-             "sac.entropy_lr": 1.0, "mb.meta_inner_lr": 0.0}  # fmt: skip
-    if config.algo != "dreamer":
-        fixed["ma.mode"] = "full"
+    can share one compiled program. The MA mode is data too (``data_values``' ``"ma.terms"``)."""
+    fixed = {"seed": 0, "ma.alpha": 0.0, "ma.mode": "full", "sac.actor_lr": 1.0,
+             "sac.critic_lr": 1.0, "sac.entropy_lr": 1.0, "mb.meta_inner_lr": 0.0}  # fmt: skip
     return replace_fields(config, fixed)
 
 

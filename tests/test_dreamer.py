@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from minatt_jax import min_attention as ma
 from minatt_jax.dreamer import distributions as dist
 from minatt_jax.dreamer.agent import Batch, Latent, make_agent
 from minatt_jax.dreamer.config import DreamerConfig
@@ -184,6 +185,32 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
             jax.tree.leaves(off.params[name]), jax.tree.leaves(new.params[name]), strict=True
         ):
             np.testing.assert_array_equal(a, b)
+
+
+def test_ma_mode_is_data_and_each_weighting_equals_the_modes_own_agent(agent):
+    """The (feedback, temporal) weights in the state pick the mode inside a program that
+    computes both terms: each gives its own agent's update (a population of modes shares it)."""
+    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    batch = _batch(jax.random.PRNGKey(3), TINY)
+    update = jax.jit(agent.update)
+    for k in (5, 6):  # past the warm-up's zero rate, so the actor has moved (temporal term)
+        state, _ = update(state, batch, jax.random.PRNGKey(k))
+    np.testing.assert_array_equal(state.ma_terms, [1.0, 1.0])
+    penalties = []
+    for mode in ("jacobian", "temporal", "none"):
+        own = make_agent(5, 2, TINY, MAConfig(alpha=0.5, mode=mode))
+        weighted = state.replace(ma_terms=jnp.asarray(ma.term_weights(mode)))
+        got, got_metrics = update(weighted, batch, jax.random.PRNGKey(4))
+        want, want_metrics = jax.jit(own.update)(state, batch, jax.random.PRNGKey(4))
+        # (an agent without MA reports no penalty)
+        np.testing.assert_allclose(got_metrics["ma_penalty"], want_metrics.get("ma_penalty", 0),
+                                   rtol=1e-5, atol=1e-8, err_msg=mode)  # fmt: skip
+        for a, b in zip(jax.tree.leaves(got.params["actor"]),
+                        jax.tree.leaves(want.params["actor"]), strict=True):  # fmt: skip
+            np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6, err_msg=mode)
+        penalties.append(float(got_metrics["ma_penalty"]))
+    assert update._cache_size() == 1
+    assert penalties[0] > 0 and penalties[1] > 0 and penalties[2] == 0
 
 
 @pytest.mark.slow

@@ -60,6 +60,7 @@ class AgentState:
     return_scale: dist.ReturnScale
     updates: jax.Array
     alpha: jax.Array  # the MA weight (data: populations sweep it)
+    ma_terms: jax.Array  # the MA mode's (feedback, temporal) 0/1 weights (data, like alpha)
 
 
 class Batch(NamedTuple):
@@ -157,6 +158,7 @@ def make_agent(
             return_scale=dist.ReturnScale.create(),
             updates=jnp.zeros((), jnp.int32),
             alpha=jnp.asarray(alpha, jnp.float32),
+            ma_terms=jnp.asarray(ma.term_weights(ma_config.mode), jnp.float32),
         )
 
     def initial_latent(batch: tuple[int, ...]) -> Latent:
@@ -307,7 +309,7 @@ def make_agent(
             starts = traj["feat"][0]
             penalty, ma_metrics = regularizer.actor_penalty(
                 actor_params, starts, None, (k_ma, k_ma), prev_params=state.prev_actor,
-                update_step=state.updates, alpha=state.alpha,
+                update_step=state.updates, alpha=state.alpha, terms=state.ma_terms,
             )  # fmt: skip
             metrics = {"actor_loss": loss, "policy_entropy": jnp.mean(entropy),
                        "policy_std": jnp.mean(std), **ma_metrics}  # fmt: skip

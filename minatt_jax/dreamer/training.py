@@ -144,9 +144,11 @@ class DreamerTrainState:
         return {"world_model": params["world_model"], "actor": params["actor"]}, {}
 
     def with_data(self, values: dict[str, jax.Array]) -> DreamerTrainState:
-        """The state with its data fields set (the MA weight; the SAC learning rates do not
-        apply to DreamerV3)."""
-        return self.replace(agent=self.agent.replace(alpha=jnp.asarray(values["ma.alpha"])))
+        """The state with its data fields set (the MA weight and mode; the SAC learning rates do
+        not apply to DreamerV3)."""
+        agent = self.agent.replace(alpha=jnp.asarray(values["ma.alpha"]),
+                                   ma_terms=jnp.asarray(values["ma.terms"]))  # fmt: skip
+        return self.replace(agent=agent)
 
 
 def update_schedule(config: TrainConfig) -> tuple[int, int]:
