@@ -29,8 +29,9 @@ RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 SWEPT = ["env", "model.ensemble_size", "mb.rollout_batch"]
 
 
-def members(args: argparse.Namespace) -> list[Any]:
-    base = xt.study_preset(args)
+def members(args: argparse.Namespace, base: Any) -> list[Any]:
+    """Every (arm, seed) member from the preset ``base``: each M at the preset's N, each N at
+    the preset's M."""
     arms = [(m, None) for m in args.sizes]
     arms += [(None, n) for n in args.trajectories if n != base.mb.rollout_batch]
     out = []
@@ -100,10 +101,10 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 5, 15, 20])
     parser.add_argument("--trajectories", type=int, nargs="+", default=[16, 128, 256, 512])
     args = parser.parse_args()
-    configs = members(args)
+    base = xt.study_preset(args)
+    configs = members(args, base)
     reused = xt.reused_runs(args, configs)
     steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT, reused=reused)
-    base = xt.study_preset(args)
     baseline = f"M={base.model.ensemble_size} N={base.mb.rollout_batch}"
     tables: dict[str, Any] = {}
     curves: dict[str, Any] = {}
