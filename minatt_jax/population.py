@@ -3,11 +3,11 @@
 A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
 values). Members that differ only in fields that are *data* (``DATA_FIELDS``: the seed, the MA
 weight, the SAC learning rates, MB-MPO's inner step size; and the MA mode, full / Jacobian-only /
-temporal-only, as 0/1 term weights, but for DreamerV3) share one program: their train states
-are stacked on a leading axis and every iteration is vmapped over it (``training.make_train``'s
-``run_chunk``), so sweeping those values never recompiles. Members that differ in anything else
-(network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups, compiled once
-each and trained one after another.
+temporal-only, as 0/1 term weights) share one program: their train states are stacked on a
+leading axis and every iteration is vmapped over it (the trainer's ``run_chunk``: SAC, MBPO,
+MB-MPO and DreamerV3 alike), so sweeping those values never recompiles. Members that differ in
+anything else (network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups,
+compiled once each and trained one after another.
 
 The schedule (warm-up, model refits, update start) is a function of the env-step counter, which
 all members of a group share: it is passed unbatched, so every ``lax.cond`` of the schedule stays
@@ -42,7 +42,7 @@ import numpy as np
 from minatt_jax import checkpoint, run_guard, runner
 from minatt_jax import min_attention as ma
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
-from minatt_jax.evaluation import deterministic_of, make_evaluator, summarize
+from minatt_jax.evaluation import summarize
 from minatt_jax.run_files import (
     DivergedError,
     RunError,
@@ -187,10 +187,7 @@ class Program:
         else:  # states and per-member metrics stay split over the devices, chunk after chunk
             self.chunk = jax.jit(chunk, donate_argnums=0, in_shardings=self.sharding,
                                  out_shardings=self.sharding)  # fmt: skip
-        cfg = self.config
-        evaluator = make_evaluator(t.env, deterministic_of(t.sac.control, cfg.sac.normalize_obs),
-                                   cfg.max_episode_steps, cfg.eval_episodes)  # fmt: skip
-        self.evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, 0, 0, None)))
+        self.evaluate = jax.jit(jax.vmap(t.evaluate, in_axes=(0, 0, None)))
 
     def init(self) -> TrainState:
         """Every member's initial state (its seed's, with its data values), stacked. As for
@@ -280,9 +277,6 @@ def train_population(
 ) -> list[dict[str, Any]]:
     """Trains (or resumes) this process's share of every group (all members in one process),
     group by group; returns each member's last record ({} for other processes' members)."""
-    if any(c.algo == "dreamer" for c in members):
-        raise RunError("populations of DreamerV3 runs are not supported yet: train its seeds as "
-                       "single runs (--seed N)")  # fmt: skip
     rank, processes = process or this_process()
     names = [member_name(c, swept) for c in members]
     if len(set(names)) != len(names):
@@ -438,9 +432,7 @@ def _train_group(
         step = int(states.env_steps[0])
         t0 = time.perf_counter()
         keys = jnp.stack([jax.random.fold_in(k, step) for k in eval_keys])
-        results = jax.device_get(program.evaluate(
-            states.agent.actor_params, states.data.normalizer, keys, trainer.task_set
-        ))  # fmt: skip
+        results = jax.device_get(program.evaluate(states, keys, trainer.task_set))
         eval_s = time.perf_counter() - t0
         metrics = jax.device_get(metrics)
         timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,

@@ -53,7 +53,7 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object
 # modules count as quick. A stale figure only costs balance, never correctness.
 MODULE_SECONDS = {
     "test_population.py": 400,
-    "test_dreamer.py": 300,
+    "test_dreamer.py": 480,
     "test_meta_test.py": 480,
     "test_reliability.py": 300,
     "test_train_program.py": 370,

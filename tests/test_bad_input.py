@@ -121,7 +121,6 @@ CASES = [
     (["export", "{RUN}", "--out", "{ROOT}"], "is a directory"),
     (["export", "{RUN}", "--out", "/proc/policy.npz"], "cannot write"),
     (["export", "{MISSING}", "--out", "{ROOT}/p.npz"], "does not exist"),
-    (["train", "--algo", "dreamer", "--seeds", "0-1", "--out", "{MISSING}"], "DreamerV3"),
 ]
 
 

@@ -196,7 +196,10 @@ def make_dreamer_train(config: TrainConfig) -> Any:
             env_steps=jnp.zeros((), jnp.int32),
         )  # fmt: skip
 
-    def collect(ts: DreamerTrainState, key: jax.Array, steps: jax.Array):
+    def collect(ts: DreamerTrainState, key: jax.Array, steps: jax.Array,
+                members_axis: str | None = None):  # fmt: skip
+        """One env step of every environment; in a population (``members_axis``) the resets'
+        predicate is taken over all members, so the reset stays a branch (``acting``)."""
         k_obs, k_act, k_random, k_reset = jax.random.split(key, 4)
         col = ts.collector
         replay = ts.replay.add(col.step)
@@ -210,7 +213,10 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         length = col.episode_length + 1
         finite = jnp.isfinite(stepped.reward) & jnp.all(jnp.isfinite(stepped.obs), -1)
         ended_next = (stepped.done > 0) | (length >= config.max_episode_steps) | ~finite
-        fresh = jax.lax.cond(jnp.any(col.ended), reset_envs, lambda _: stepped, k_reset)
+        any_ended = jnp.any(col.ended)
+        if members_axis is not None:
+            any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
+        fresh = jax.lax.cond(any_ended, reset_envs, lambda _: stepped, k_reset)
         pick = lambda a, b: jnp.where(  # noqa: E731
             col.ended.reshape(col.ended.shape + (1,) * (a.ndim - 1)), a, b
         )
@@ -254,9 +260,10 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         shapes = jax.eval_shape(updates, agent_state, replay, key)[1]
         return agent_state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
-    def iteration(ts: DreamerTrainState, steps: jax.Array) -> tuple[DreamerTrainState, dict]:
+    def iteration(ts: DreamerTrainState, steps: jax.Array,
+                  members_axis: str | None = None) -> tuple[DreamerTrainState, dict]:  # fmt: skip
         rng, k_collect, k_update = jax.random.split(ts.rng, 3)
-        ts, collect_metrics = collect(ts.replace(rng=rng), k_collect, steps)
+        ts, collect_metrics = collect(ts.replace(rng=rng), k_collect, steps, members_axis)
         due = (steps + n >= ready_at) & ((steps // n) % iterations_per_update == 0)
         agent_state, update_metrics = jax.lax.cond(
             due, updates, no_updates, ts.agent, ts.replay, k_update
@@ -265,11 +272,7 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         count = jnp.where(due, updates_per_iteration, 0)
         return ts, {**collect_metrics, **update_metrics, "updates": count}
 
-    def run_chunk(ts: DreamerTrainState, start: jax.Array) -> tuple[DreamerTrainState, dict]:
-        def body(ts, i):
-            return iteration(ts, start + i * n)
-
-        ts, per_iteration = jax.lax.scan(body, ts, jnp.arange(iterations))
+    def chunk_summary(per_iteration: dict) -> dict:
         totals = jax.tree.map(lambda x: jnp.sum(x, 0), per_iteration)
         done = jnp.maximum(totals.pop("updates"), 1)
         episodes = totals.pop("episodes")
@@ -279,7 +282,27 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         summary["env_non_finite_resets"] = totals["env_non_finite_resets"]
         summary["updates"] = jnp.sum(per_iteration["updates"])
         summary["train_ratio"] = summary["updates"] * bt / (iterations * n)
-        return ts, summary
+        return summary
+
+    def run_chunk(
+        ts: DreamerTrainState, start: jax.Array, members: bool = False
+    ) -> tuple[DreamerTrainState, dict]:
+        """``iterations`` iterations from env step ``start`` (unbatched, so the update schedule
+        stays a branch); with ``members`` the state has a leading population axis."""
+        if members:
+            step = jax.vmap(lambda t, s: iteration(t, s, "members"), in_axes=(0, None),
+                            axis_name="members")  # fmt: skip
+        else:
+            step = iteration
+
+        def body(ts, i):
+            return step(ts, start + i * n)
+
+        ts, per_iteration = jax.lax.scan(body, ts, jnp.arange(iterations))
+        if members:
+            per_member = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), per_iteration)
+            return ts, jax.vmap(chunk_summary)(per_member)
+        return ts, chunk_summary(per_iteration)
 
     def train_chunk(ts: DreamerTrainState) -> tuple[DreamerTrainState, dict]:
         return run_chunk(ts, ts.env_steps)
@@ -294,6 +317,6 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         config=config, env=env, sac=None, task_set=task_set, init=jax.jit(init),
         train_chunk=jax.jit(train_chunk, donate_argnums=0), evaluate=evaluate,
         steps_per_chunk=iterations * n, ensemble=None, meta_step=None,
-        parts={"init_state": init, "run_chunk": lambda ts, start, members: run_chunk(ts, start),
+        parts={"init_state": init, "run_chunk": run_chunk,
                "agent": agent},
     )  # fmt: skip
