@@ -207,6 +207,34 @@ def summarize_chunk(metrics: dict, names: tuple[str, ...], updates_per_step: int
     return summary
 
 
+def scan_iterations(
+    iteration: Callable[[Any, jax.Array, str | None], tuple[Any, dict]],
+    ts: Any,
+    start: jax.Array,
+    steps_per_iteration: int,
+    iterations: int,
+    members: bool,
+) -> tuple[Any, dict]:
+    """``iterations`` calls of ``iteration(state, env_step, members_axis)`` from env step
+    ``start``, in one ``lax.scan``; returns the state and the per-iteration metrics. The env step
+    is unbatched, so the schedule's ``lax.cond``s stay branches. With ``members`` the state has a
+    leading population axis: each iteration is vmapped over it (axis name ``"members"``, which
+    the resets' predicate is reduced over) and the metrics come back member-first."""
+    if members:
+        step = jax.vmap(lambda t, s: iteration(t, s, "members"), in_axes=(0, None),
+                        axis_name="members")  # fmt: skip
+    else:
+        step = lambda t, s: iteration(t, s, None)  # noqa: E731
+
+    def body(state: Any, i: jax.Array) -> tuple[Any, dict]:
+        return step(state, start + i * steps_per_iteration)
+
+    ts, metrics = jax.lax.scan(body, ts, jnp.arange(iterations, dtype=jnp.int32))
+    if members:
+        metrics = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), metrics)
+    return ts, metrics
+
+
 def make_train(config: TrainConfig) -> Trainer:
     """Builds the environment, agent, optional model and meta step, and the jitted stages."""
     if not config.is_resolved:
@@ -526,22 +554,9 @@ def make_train(config: TrainConfig) -> Trainer:
         return summary
 
     def run_chunk(ts: TrainState, start: jax.Array, members: bool) -> tuple[TrainState, dict]:
-        """``iterations`` iterations from env step ``start`` (unbatched); with ``members`` the
-        state has a leading population axis and each iteration is vmapped over it."""
-        if members:  # resets stay a branch: acting.collect_step's members_axis
-            step = jax.vmap(lambda t, s: iteration(t, s, "members"), in_axes=(0, None),
-                            axis_name="members")  # fmt: skip
-        else:
-            step = iteration
-
-        def body(ts, i):
-            return step(ts, start + i * n)
-
-        ts, metrics = jax.lax.scan(body, ts, jnp.arange(iterations, dtype=jnp.int32))
-        if members:
-            metrics = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), metrics)
-            return ts, jax.vmap(chunk_summary)(ts, metrics)
-        return ts, chunk_summary(ts, metrics)
+        """``iterations`` iterations from env step ``start`` (``scan_iterations``)."""
+        ts, metrics = scan_iterations(iteration, ts, start, n, iterations, members)
+        return ts, (jax.vmap(chunk_summary) if members else chunk_summary)(ts, metrics)
 
     def train_chunk(ts: TrainState) -> tuple[TrainState, dict]:
         return run_chunk(ts, ts.env_steps, members=False)

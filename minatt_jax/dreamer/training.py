@@ -163,7 +163,7 @@ def update_schedule(config: TrainConfig) -> tuple[int, int]:
 
 def make_dreamer_train(config: TrainConfig) -> Any:
     """The DreamerV3 ``Trainer`` of a resolved configuration (see the module docstring)."""
-    from minatt_jax.training import Trainer, training_tasks
+    from minatt_jax.training import Trainer, scan_iterations, training_tasks
 
     env = envs.make(config.env, config.physics)
     d = config.dreamer
@@ -287,22 +287,9 @@ def make_dreamer_train(config: TrainConfig) -> Any:
     def run_chunk(
         ts: DreamerTrainState, start: jax.Array, members: bool = False
     ) -> tuple[DreamerTrainState, dict]:
-        """``iterations`` iterations from env step ``start`` (unbatched, so the update schedule
-        stays a branch); with ``members`` the state has a leading population axis."""
-        if members:
-            step = jax.vmap(lambda t, s: iteration(t, s, "members"), in_axes=(0, None),
-                            axis_name="members")  # fmt: skip
-        else:
-            step = iteration
-
-        def body(ts, i):
-            return step(ts, start + i * n)
-
-        ts, per_iteration = jax.lax.scan(body, ts, jnp.arange(iterations))
-        if members:
-            per_member = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), per_iteration)
-            return ts, jax.vmap(chunk_summary)(per_member)
-        return ts, chunk_summary(per_iteration)
+        """``iterations`` iterations from env step ``start`` (``training.scan_iterations``)."""
+        ts, per_iteration = scan_iterations(iteration, ts, start, n, iterations, members)
+        return ts, (jax.vmap(chunk_summary) if members else chunk_summary)(per_iteration)
 
     def train_chunk(ts: DreamerTrainState) -> tuple[DreamerTrainState, dict]:
         return run_chunk(ts, ts.env_steps)
