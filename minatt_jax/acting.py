@@ -218,6 +218,37 @@ def reset_with_tasks(env: Any, task_set: Any, num_envs: int, key: jax.Array) -> 
     return jax.vmap(env.reset)(jax.random.split(k_reset, num_envs), tasks)
 
 
+def select_envs(mask: jax.Array, where_true: Any, where_false: Any) -> Any:
+    """Per environment (leading axis), the leaves of ``where_true`` where ``mask`` is set."""
+    return jax.tree.map(
+        lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b),
+        where_true,
+        where_false,
+    )
+
+
+def reset_ended(
+    ended: jax.Array,
+    reset: Callable[[jax.Array], EnvState],
+    env_state: EnvState,
+    key: jax.Array,
+    members_axis: str | None = None,
+) -> EnvState:
+    """``env_state`` with the environments whose episode ``ended`` replaced by fresh ones.
+
+    ``reset(key)`` runs under a ``lax.cond`` only when some episode ended. In a population
+    (``members_axis``, the name of its vmapped axis) that predicate is taken over all members
+    (``lax.pmax``), so it stays unbatched and the reset a real branch; a batched predicate would
+    make it a select that resets every member at every step (cheetah_run's reset settles 200
+    physics steps).
+    """
+    any_ended = jnp.any(ended)
+    if members_axis is not None:
+        any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
+    fresh = jax.lax.cond(any_ended, reset, lambda k: env_state, key)
+    return select_envs(ended, fresh, env_state)
+
+
 def collect_step(
     env: Any,
     env_state: EnvState,
@@ -232,15 +263,12 @@ def collect_step(
     """Steps every environment, ends episodes (termination or the step limit) and resets them.
 
     ``reset(key)`` returns fresh states for all environments (new tasks included); it runs
-    under a ``lax.cond`` only when some episode ended, so resets cost nothing otherwise. Only
+    only when some episode ended (``reset_ended``), so resets cost nothing otherwise. Only
     termination sets ``terminal`` (time limits are bootstrapped). A simulator state that went
     non-finite (NaN or inf observation or reward) ends its episode and is reset; ``finite``
     marks it so the caller does not learn from it, and its return is not counted.
 
-    ``members_axis``: the name of a population's vmapped axis. There the predicate "some episode
-    ended" is taken over all members (``lax.pmax``), so it stays unbatched and the reset a real
-    branch; a batched predicate would make it a select that resets every member at every step
-    (cheetah_run's reset settles 200 physics steps).
+    ``members_axis``: the name of a population's vmapped axis (``reset_ended``).
     """
     next_state = jax.vmap(env.step)(env_state, action)
     length = episode_length + 1
@@ -250,15 +278,7 @@ def collect_step(
     transitions = Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
                               next_obs=next_state.obs, terminal=terminal)  # fmt: skip
     ep_return = episode_return + next_state.reward
-    any_ended = jnp.any(ended)
-    if members_axis is not None:
-        any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
-    fresh = jax.lax.cond(any_ended, reset, lambda k: next_state, key)
-    new_state = jax.tree.map(
-        lambda a, b: jnp.where(ended.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
-        fresh,
-        next_state,
-    )
+    new_state = reset_ended(ended, reset, next_state, key, members_axis)
     return CollectStep(
         transitions=transitions,
         env_state=new_state,

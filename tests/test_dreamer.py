@@ -348,19 +348,53 @@ def test_dreamer_run_analyzes(tmp_path, capsys):
         assert "dreamer" in json.dumps(json.load(f))
 
 
+def _dreamer_members() -> list:
+    """Two DreamerV3 members: seed 0 with full MA, seed 1 Jacobian-only."""
+    from minatt_jax.config import PRESETS, resolve, with_overrides
+
+    base = with_overrides(PRESETS["smoke"], env="cheetah_run", algo="dreamer", total_steps=300,
+                          **SMALL_RUN)  # fmt: skip
+    return [resolve(with_overrides(base, seed=0)),
+            resolve(with_overrides(base, seed=1, ma_mode="jacobian"))]  # fmt: skip
+
+
 @pytest.mark.slow
+def test_a_dreamer_population_is_one_program_whose_members_do_not_interact():
+    """Seeds and MA modes are data for DreamerV3 too: two members train in one program, and
+    each trains alike in either position (only the resets' predicate is shared, and a reset
+    replaces only ended episodes). The comparison with each member's own run, which compiles a
+    second program: the extended test below; the modes' own agents: the weighting test above."""
+    from minatt_jax import population
+
+    members = _dreamer_members()
+    assert population.groups(members) == [[0, 1]]
+    program = population.Program(members)
+    init = program.init()
+    swapped = jax.tree.map(lambda x: x[::-1], init)  # before the chunk takes (donates) init
+    states, metrics = program.chunk(init)
+    swapped_states, swapped_metrics = program.chunk(swapped)
+    assert program.chunk._cache_size() == 1
+    assert float(np.min(metrics["updates"])) > 0
+    for key in ("wm_loss", "actor_loss", "critic_loss", "ma_penalty", "train_episode_return"):
+        np.testing.assert_allclose(swapped_metrics[key][::-1], metrics[key], rtol=1e-5,
+                                   atol=1e-7, err_msg=key)  # fmt: skip
+    actor, swapped_actor = states.agent.params["actor"], swapped_states.agent.params["actor"]
+    for a, b in zip(jax.tree.leaves(actor), jax.tree.leaves(swapped_actor), strict=True):
+        np.testing.assert_allclose(b[::-1], a, rtol=1e-5, atol=1e-7)
+    # The members are another seed in another mode: they trained otherwise.
+    assert float(metrics["actor_loss"][0]) != float(metrics["actor_loss"][1])
+
+
+@pytest.mark.slow
+@pytest.mark.extended  # a second DreamerV3 compile (the member's own run): pytest -m extended
 def test_a_dreamer_population_is_one_program_and_a_member_equals_its_own_run():
     """Seeds and MA modes are data for DreamerV3 too: two members (seed 0 with full MA, seed 1
     Jacobian-only) train in one program, and the second trains as its own run does (whose
     program computes the feedback term alone)."""
     from minatt_jax import population
-    from minatt_jax.config import PRESETS, resolve, with_overrides
     from minatt_jax.training import make_train
 
-    base = with_overrides(PRESETS["smoke"], env="cheetah_run", algo="dreamer", total_steps=300,
-                          **SMALL_RUN)  # fmt: skip
-    members = [resolve(with_overrides(base, seed=0)),
-               resolve(with_overrides(base, seed=1, ma_mode="jacobian"))]  # fmt: skip
+    members = _dreamer_members()
     assert population.groups(members) == [[0, 1]]
     program = population.Program(members)
     states, metrics = program.chunk(program.init())

@@ -213,20 +213,13 @@ def make_dreamer_train(config: TrainConfig) -> Any:
         length = col.episode_length + 1
         finite = jnp.isfinite(stepped.reward) & jnp.all(jnp.isfinite(stepped.obs), -1)
         ended_next = (stepped.done > 0) | (length >= config.max_episode_steps) | ~finite
-        any_ended = jnp.any(col.ended)
-        if members_axis is not None:
-            any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
-        fresh = jax.lax.cond(any_ended, reset_envs, lambda _: stepped, k_reset)
-        pick = lambda a, b: jnp.where(  # noqa: E731
-            col.ended.reshape(col.ended.shape + (1,) * (a.ndim - 1)), a, b
-        )
-        env_state = jax.tree.map(pick, fresh, stepped)
+        env_state = acting.reset_ended(col.ended, reset_envs, stepped, k_reset, members_axis)
         reward = jnp.where(finite, stepped.reward, 0.0)
         nxt = Batch(
             obs=jnp.where(finite[:, None], stepped.obs, col.step.obs), prev_action=action,
             reward=reward, is_first=jnp.zeros((n,)), cont=1.0 - stepped.done,
         )  # fmt: skip
-        step = jax.tree.map(pick, first_step(env_state), nxt)
+        step = acting.select_envs(col.ended, first_step(env_state), nxt)
         finished = ended_next & ~col.ended  # episodes that ended at this step
         finished_return = jnp.where(finished, col.episode_return + reward, 0.0)
         collector = DreamerCollector(
