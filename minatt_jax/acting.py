@@ -30,7 +30,7 @@ from flax import struct
 from minatt_jax import min_attention as ma
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.envs import sample_task
-from minatt_jax.replay import Transitions
+from minatt_jax.replay import Transitions, select_rows
 
 
 class Policy(NamedTuple):
@@ -218,15 +218,6 @@ def reset_with_tasks(env: Any, task_set: Any, num_envs: int, key: jax.Array) -> 
     return jax.vmap(env.reset)(jax.random.split(k_reset, num_envs), tasks)
 
 
-def select_envs(mask: jax.Array, where_true: Any, where_false: Any) -> Any:
-    """Per environment (leading axis), the leaves of ``where_true`` where ``mask`` is set."""
-    return jax.tree.map(
-        lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b),
-        where_true,
-        where_false,
-    )
-
-
 def reset_ended(
     ended: jax.Array,
     reset: Callable[[jax.Array], EnvState],
@@ -246,7 +237,7 @@ def reset_ended(
     if members_axis is not None:
         any_ended = jax.lax.pmax(any_ended.astype(jnp.int32), members_axis) > 0
     fresh = jax.lax.cond(any_ended, reset, lambda k: env_state, key)
-    return select_envs(ended, fresh, env_state)
+    return select_rows(ended, fresh, env_state)
 
 
 def collect_step(

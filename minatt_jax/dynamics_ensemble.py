@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from minatt_jax.replay import Transitions
+from minatt_jax.replay import Transitions, select_rows
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,13 +238,7 @@ def make_ensemble(obs_dim: int, act_dim: int, config: ModelConfig) -> Ensemble:
             )
             mse = holdout_mse(params, hold_x, hold_y, hold_w)
             improved = (best - mse) / jnp.maximum(best, 1e-12) > config.improvement
-            best_params = jax.tree.map(
-                lambda new, old: jnp.where(
-                    improved.reshape((-1,) + (1,) * (new.ndim - 1)), new, old
-                ),
-                params,
-                best_params,
-            )
+            best_params = select_rows(improved, params, best_params)
             best = jnp.where(improved, mse, best)
             since = jnp.where(jnp.any(improved), 0, since + 1)
             return params, opt_state, best_params, best, since, count + 1, key

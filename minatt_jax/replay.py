@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -70,6 +72,17 @@ def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Transitions
     return jax.tree.map(lambda x: x[idx], buffer.data)
 
 
+def select_rows(mask: jax.Array, where_true: Any, where_false: Any) -> Any:
+    """Row by row (the leading axes of ``mask``), the leaves of ``where_true`` where ``mask`` is
+    set and those of ``where_false`` elsewhere: one masked choice for buffer rows, environments
+    and ensemble members alike."""
+    return jax.tree.map(
+        lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - mask.ndim)), a, b),
+        where_true,
+        where_false,
+    )
+
+
 def insert_masked(buffer: ReplayBuffer, batch: Transitions, mask: jax.Array) -> ReplayBuffer:
     """Appends the rows of ``batch`` (leading axis) where ``mask`` is 1, in order.
 
@@ -85,13 +98,8 @@ def insert_masked(buffer: ReplayBuffer, batch: Transitions, mask: jax.Array) -> 
     rows = jax.tree.map(lambda x: x[order], batch)
     idx = (buffer.position + jnp.arange(k)) % buffer.capacity
     use = jnp.arange(k) < count
-    data = jax.tree.map(
-        lambda store, new: store.at[idx].set(
-            jnp.where(use.reshape((-1,) + (1,) * (new.ndim - 1)), new, store[idx])
-        ),
-        buffer.data,
-        rows,
-    )
+    written = select_rows(use, rows, jax.tree.map(lambda store: store[idx], buffer.data))
+    data = jax.tree.map(lambda store, new: store.at[idx].set(new), buffer.data, written)
     return ReplayBuffer(
         data=data,
         position=(buffer.position + count) % buffer.capacity,

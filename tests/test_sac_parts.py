@@ -41,6 +41,16 @@ def test_replay_buffer_wraps_and_samples_only_valid_rows():
     assert sorted(np.asarray(buf.data.reward).tolist()) == [2.0, 3.0, 4.0, 5.0, 6.0]
 
 
+def test_select_rows_chooses_whole_rows_over_the_mask_axes():
+    mask = jnp.array([[True, False, True], [False, False, True]])  # (members, envs)
+    a = {"x": jnp.ones((2, 3, 4)), "s": jnp.ones((2, 3))}
+    b = {"x": jnp.zeros((2, 3, 4)), "s": jnp.zeros((2, 3))}
+    out = replay.select_rows(mask, a, b)
+    np.testing.assert_array_equal(out["s"], mask.astype(jnp.float32))
+    expected = np.repeat(np.asarray(mask, np.float32)[..., None], 4, axis=-1)
+    np.testing.assert_array_equal(out["x"], expected)
+
+
 def test_normalizer_matches_numpy_statistics():
     data = np.random.default_rng(0).normal(3.0, 2.0, (300, 4)).astype(np.float32)
     norm = normalizer.init_normalizer(4)

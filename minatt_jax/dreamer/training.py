@@ -35,6 +35,7 @@ from minatt_jax import acting
 from minatt_jax.config import TrainConfig
 from minatt_jax.dreamer.agent import AgentState, Batch, DreamerAgent, Latent, make_agent
 from minatt_jax.evaluation import EvalResult, make_evaluator
+from minatt_jax.replay import select_rows
 
 
 @struct.dataclass
@@ -219,7 +220,7 @@ def make_dreamer_train(config: TrainConfig) -> Any:
             obs=jnp.where(finite[:, None], stepped.obs, col.step.obs), prev_action=action,
             reward=reward, is_first=jnp.zeros((n,)), cont=1.0 - stepped.done,
         )  # fmt: skip
-        step = acting.select_envs(col.ended, first_step(env_state), nxt)
+        step = select_rows(col.ended, first_step(env_state), nxt)
         finished = ended_next & ~col.ended  # episodes that ended at this step
         finished_return = jnp.where(finished, col.episode_return + reward, 0.0)
         collector = DreamerCollector(
