@@ -56,6 +56,7 @@ from minatt_jax.training import (
     config_field,
     data_values,
     make_train,
+    program_config,
     with_data,
 )
 
@@ -116,14 +117,6 @@ def _split_values(text: str) -> list[str]:
         else:
             current += ch
     return [v for v in [*out, current] if v.strip()]
-
-
-def program_config(config: TrainConfig) -> TrainConfig:
-    """The member's configuration with its data fields at fixed values: equal for members that
-    can share one compiled program. The MA mode is data too (``data_values``' ``"ma.terms"``)."""
-    fixed = {"seed": 0, "ma.alpha": 0.0, "ma.mode": "full", "sac.actor_lr": 1.0,
-             "sac.critic_lr": 1.0, "sac.entropy_lr": 1.0, "mb.meta_inner_lr": 0.0}  # fmt: skip
-    return replace_fields(config, fixed)
 
 
 def groups(members: list[TrainConfig]) -> list[list[int]]:

@@ -8,6 +8,7 @@ writes the same metrics as one never interrupted (timings aside).
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import signal
@@ -35,9 +36,11 @@ from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's pub
 )
 from minatt_jax.training import (
     DATA_FIELDS,
+    Trainer,
     config_field,
     data_values,
     make_train,
+    run_program_config,
     with_data,
 )
 
@@ -190,6 +193,31 @@ def _check_resumable(stored: TrainConfig, config: TrainConfig, run_dir: str) -> 
         )
 
 
+# The trainers (and their compiled chunks) of this process's latest programs, newest last: runs
+# in one process (a notebook's, a sweep script's, the tests') that differ only in seed, length
+# or data values reuse them instead of tracing and compiling again.
+_TRAINERS: collections.OrderedDict[TrainConfig, tuple[Trainer, dict[str, Any]]] = (
+    collections.OrderedDict()
+)
+_KEEP_TRAINERS = 4
+
+
+def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
+    """The trainer of ``config``'s program (``run_program_config``) and a dict for what the
+    runner compiles from it, built once per process (the last ``_KEEP_TRAINERS`` kept). Built
+    from the program's configuration, not the run's, so nothing depends on which run came
+    first: a run's own seed and data values enter its state (``init``, ``with_data``)."""
+    key = run_program_config(config)
+    if key in _TRAINERS:
+        _TRAINERS.move_to_end(key)
+        return _TRAINERS[key]
+    built = (make_train(key), {})
+    _TRAINERS[key] = built
+    while len(_TRAINERS) > _KEEP_TRAINERS:
+        _TRAINERS.popitem(last=False)
+    return built
+
+
 def _resume_hint(run_dir: str) -> str:
     return f"minatt-jax train --out {run_dir} --resume"
 
@@ -226,7 +254,7 @@ def _train(
     log: Callable[[str], None],
     stop: run_guard.StopSignals,
 ) -> dict[str, Any]:
-    trainer = make_train(config)
+    trainer, compiled = trainer_for(config)
     if config.planned_steps != config.total_steps:
         chunks = config.planned_steps // config.eval_every
         log(f"note: {config.total_steps} steps is not a multiple of eval_every "
@@ -263,12 +291,17 @@ def _train(
             raise RunError(f"{run_dir} holds checkpoints or metrics of another run but no "
                            "config.json; choose another --out or remove them")  # fmt: skip
         write_json_atomic(config_path, config.to_dict())
-        state = trainer.init(jax.random.PRNGKey(config.seed))
+        fresh = with_data(trainer.init(jax.random.PRNGKey(config.seed)), data_values(config))
+        state = jax.device_put(fresh, jax.devices()[0])  # the data values committed as well
 
     t0 = time.perf_counter()
-    chunk = trainer.train_chunk.lower(state).compile()
+    if "chunk" in compiled:
+        log("reusing the training step compiled for an earlier run of this program")
+    else:
+        compiled["chunk"] = trainer.train_chunk.lower(state).compile()
+        log(f"compiled the training step in {time.perf_counter() - t0:.1f} s")
+    chunk = compiled["chunk"]
     compile_s = time.perf_counter() - t0
-    log(f"compiled the training step in {compile_s:.1f} s")
     writer = tensorboard(run_dir)
     eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
     record: dict[str, Any] = {}

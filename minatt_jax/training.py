@@ -43,7 +43,7 @@ import minatt_jax.envs as envs
 from minatt_jax import acting, imagination, replay
 from minatt_jax import min_attention as ma
 from minatt_jax import normalizer as obs_norm
-from minatt_jax.config import TrainConfig
+from minatt_jax.config import TrainConfig, replace_fields
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, make_ensemble
 from minatt_jax.evaluation import EvalResult, deterministic_of, make_evaluator
 from minatt_jax.maml import MetaStep, Trajectories, make_meta_step
@@ -178,6 +178,25 @@ def data_values(config: TrainConfig) -> dict[str, np.ndarray]:
     values = {k: np.float32(config_field(config, k)) for k in DATA_FIELDS if k != "seed"}
     values["ma.terms"] = np.asarray(ma.term_weights(config.ma.mode), np.float32)
     return values
+
+
+def program_config(config: TrainConfig) -> TrainConfig:
+    """The configuration with its data fields at fixed values: equal for runs and population
+    members that can share one compiled program. The MA mode is data too (``data_values``'
+    ``"ma.terms"``) to a population, which computes the union of its members' terms."""
+    fixed = {"seed": 0, "ma.alpha": 0.0, "ma.mode": "full", "sac.actor_lr": 1.0,
+             "sac.critic_lr": 1.0, "sac.entropy_lr": 1.0, "mb.meta_inner_lr": 0.0}  # fmt: skip
+    return replace_fields(config, fixed)
+
+
+def run_program_config(config: TrainConfig) -> TrainConfig:
+    """The configuration a single run's program is built from: ``program_config`` but for the
+    MA mode and whether MA is on (a run computes its own mode's terms alone, none at alpha 0),
+    and a fixed length (the runner's loop reads it, the program does not). Runs that differ in
+    seed, length or data values (``data_values``, set after ``init``) share it."""
+    on = {"ma.alpha": 1.0 if config.ma.active else 0.0, "ma.mode": config.ma.mode,
+          "total_steps": 1}  # fmt: skip
+    return replace_fields(program_config(config), on)
 
 
 def with_data(state: Any, values: dict[str, jax.Array]) -> Any:

@@ -13,9 +13,11 @@ from minatt_jax.config import (
     OverrideError,
     TrainConfig,
     apply_overrides,
+    replace_fields,
     resolve,
     with_overrides,
 )
+from minatt_jax.training import run_program_config
 
 
 def test_dotted_overrides_are_typed_from_the_annotations():
@@ -163,3 +165,16 @@ def test_values_beyond_float32_or_int32_are_refused(argv, message, capsys, tmp_p
         status = e.code
     err = capsys.readouterr().err
     assert status == 2 and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_runs_share_a_program_exactly_when_only_data_differs():
+    base = resolve(with_overrides(PRESETS["smoke"], ma_alpha=1.0))
+    key = run_program_config(base)
+    same = {"seed": 7, "ma.alpha": 0.3, "total_steps": 9000, "sac.actor_lr": 1e-3,
+            "sac.critic_lr": 2e-3, "sac.entropy_lr": 5e-4, "mb.meta_inner_lr": 0.1}  # fmt: skip
+    for field, value in same.items():
+        assert run_program_config(replace_fields(base, {field: value})) == key, field
+    other = {"ma.alpha": 0.0, "ma.mode": "jacobian", "num_envs": 2, "eval_every": 150,
+             "sac.batch_size": base.sac.batch_size + 1}  # fmt: skip
+    for field, value in other.items():
+        assert run_program_config(replace_fields(base, {field: value})) != key, field

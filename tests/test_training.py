@@ -94,6 +94,38 @@ def test_killed_run_resumes_exactly(tmp_path):
     assert runner.without_timings(a) == runner.without_timings(b)
 
 
+def test_runs_of_one_program_share_a_process_compiled_step(tmp_path, capsys):
+    """A second run in the process that differs in seed, MA weight and length traces and
+    compiles nothing, and writes the metrics of the same run built from scratch."""
+    smoke = ["train", "--preset", "smoke"]
+    runner._TRAINERS.clear()
+    first, second, scratch = (str(tmp_path / name) for name in ("first", "second", "scratch"))
+    assert run_cli([*smoke, "--steps", "300", "--alpha", "1", "--out", first], capsys)[0] == 0
+    ((trainer, compiled),) = runner._TRAINERS.values()
+    argv = [
+        *smoke,
+        "--steps",
+        "600",
+        "--alpha",
+        "0.25",
+        "--seed",
+        "3",
+        "--set",
+        "sac.actor_lr=1e-3",
+    ]
+    status, io = run_cli([*argv, "--out", second], capsys)
+    assert status == 0 and "reusing the training step compiled" in io.out
+    assert len(runner._TRAINERS) == 1 and runner._TRAINERS[trainer.config][1] is compiled
+    runner._TRAINERS.clear()  # the same run again, with its own trainer
+    status, io = run_cli([*argv, "--out", scratch], capsys)
+    assert status == 0 and "compiled the training step in" in io.out
+    with open(os.path.join(second, "config.json")) as f:
+        assert json.load(f)["ma"]["alpha"] == 0.25
+    a, b = runner.read_metrics(second), runner.read_metrics(scratch)
+    assert [r["step"] for r in a] == [300, 600]
+    assert runner.without_timings(a) == runner.without_timings(b)
+
+
 def test_resume_errors_exit_2(tmp_path, capsys):
     status, out = run_cli(["train", "--resume", "--out", str(tmp_path / "none")], capsys)
     assert status == 2 and "does not exist" in out.err
