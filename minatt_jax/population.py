@@ -55,7 +55,6 @@ from minatt_jax.training import (
     TrainState,
     config_field,
     data_values,
-    make_train,
     program_config,
     with_data,
 )
@@ -160,27 +159,32 @@ class Program:
         mode = modes.pop() if len(modes) == 1 else ma.union_mode([c.ma for c in configs])
         self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha,
                                                                  "ma.mode": mode})  # fmt: skip
-        self.trainer: Trainer = make_train(self.config)
+        # The trainer and this program's compiled functions are the process's (runner.trainer_for):
+        # populations and single runs of one program in a process build them once.
+        self.trainer, self.compiled = runner.trainer_for(self.config)
         self.members = configs
         self.length = max(c.total_steps for c in configs)  # env steps the group trains to
         t = self.trainer
-        self.bytes_per_member = state_bytes(t)
-
-        def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
-            return with_data(t.parts["init_state"](key), values)
-
-        self._init = jax.jit(jax.vmap(init_member))
-
-        def chunk(states: TrainState) -> tuple[TrainState, dict]:
-            return t.parts["run_chunk"](states, states.env_steps[0], True)
-
+        if "bytes_per_member" not in self.compiled:
+            self.compiled["bytes_per_member"] = state_bytes(t)
+        self.bytes_per_member: int = self.compiled["bytes_per_member"]
         self.sharding = self._member_sharding()
-        if self.sharding is None:
-            self.chunk = jax.jit(chunk, donate_argnums=0)
-        else:  # states and per-member metrics stay split over the devices, chunk after chunk
-            self.chunk = jax.jit(chunk, donate_argnums=0, in_shardings=self.sharding,
-                                 out_shardings=self.sharding)  # fmt: skip
-        self.evaluate = jax.jit(jax.vmap(t.evaluate, in_axes=(0, 0, None)))
+        functions = ("population functions", self.sharding)
+        if functions not in self.compiled:
+            self.compiled[functions] = _population_functions(t, self.sharding)
+        self._init, self.chunk, self.evaluate = self.compiled[functions]
+
+    def compiled_chunk(self, states: TrainState, log: Callable[[str], None]) -> Any:
+        """The chunk compiled for ``states`` (these members, this placement), once per process."""
+        key = ("population chunk", self.sharding, len(self.members))
+        if key in self.compiled:
+            log(f"reusing the population step ({len(self.members)} members) compiled earlier")
+        else:
+            t0 = time.perf_counter()
+            self.compiled[key] = self.chunk.lower(states).compile()
+            log(f"compiled the population step ({len(self.members)} members) in "
+                f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
+        return self.compiled[key]
 
     def init(self) -> TrainState:
         """Every member's initial state (its seed's, with its data values), stacked. As for
@@ -202,6 +206,26 @@ class Program:
     def place(self, states: TrainState) -> TrainState:
         """The stacked states split over the devices (``_member_sharding``), if several."""
         return states if self.sharding is None else jax.device_put(states, self.sharding)
+
+
+def _population_functions(
+    t: Trainer, sharding: jax.sharding.Sharding | None
+) -> tuple[Callable, Callable, Callable]:
+    """The jitted, vmapped init (keys, data values), chunk and evaluation of a trainer."""
+
+    def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
+        return with_data(t.parts["init_state"](key), values)
+
+    def chunk(states: TrainState) -> tuple[TrainState, dict]:
+        return t.parts["run_chunk"](states, states.env_steps[0], True)
+
+    if sharding is None:
+        jitted_chunk = jax.jit(chunk, donate_argnums=0)
+    else:  # states and per-member metrics stay split over the devices, chunk after chunk
+        jitted_chunk = jax.jit(chunk, donate_argnums=0, in_shardings=sharding,
+                               out_shardings=sharding)  # fmt: skip
+    evaluate = jax.jit(jax.vmap(t.evaluate, in_axes=(0, 0, None)))
+    return jax.jit(jax.vmap(init_member)), jitted_chunk, evaluate
 
 
 def state_bytes(trainer: Trainer) -> int:
@@ -406,9 +430,8 @@ def _train_group(
             runner.keep_metrics_until(d, step or 0)
         log(f"resumed {len(dirs)} members at env step {step or 0}")
     t0 = time.perf_counter()
-    chunk = program.chunk.lower(states).compile()
+    chunk = program.compiled_chunk(states, log)
     compile_s = time.perf_counter() - t0
-    log(f"compiled the population step ({len(dirs)} members) in {compile_s:.1f} s")
     writers = [runner.tensorboard(d) for d in dirs]
     eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in program.members]
     records: list[dict[str, Any]] = [{} for _ in dirs]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import socket
@@ -59,6 +60,7 @@ def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
     members = population.expand(ONE_CHUNK, [0, 1], ["ma.alpha=0,1"])
     program = population.Program(members)
     states, metrics = program.chunk(program.init())
+    compiled = program.chunk._cache_size()  # 1, or more where this process ran other shapes
     alone = train_module.make_train(resolve(members[0]))  # alpha 0, seed 0, no MA terms at all
     single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(0)))
     for key in ("critic_loss", "actor_loss", "q_mean", "train_episode_return"):
@@ -78,7 +80,7 @@ def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
     )
     other = jax.vmap(population.with_data)(program.init(), values)
     program.chunk(other)
-    assert program.chunk._cache_size() == 1
+    assert program.chunk._cache_size() == compiled
 
 
 @pytest.mark.slow
@@ -133,6 +135,7 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
         return real_reset(*args)
 
     monkeypatch.setattr(train_module.acting, "reset_with_tasks", counting_reset)
+    monkeypatch.setattr(runner, "_TRAINERS", collections.OrderedDict())  # build with the counters
     members = population.expand(with_overrides(ONE_CHUNK, algo="mbpo"), [0, 1, 2], [])
     program = population.Program(members)
     state = program.init()
