@@ -177,14 +177,8 @@ class Program:
     def compiled_chunk(self, states: TrainState, log: Callable[[str], None]) -> Any:
         """The chunk compiled for ``states`` (these members, this placement), once per process."""
         key = ("population chunk", self.sharding, len(self.members))
-        if key in self.compiled:
-            log(f"reusing the population step ({len(self.members)} members) compiled earlier")
-        else:
-            t0 = time.perf_counter()
-            self.compiled[key] = self.chunk.lower(states).compile()
-            log(f"compiled the population step ({len(self.members)} members) in "
-                f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
-        return self.compiled[key]
+        what = f"population step ({len(self.members)} members)"
+        return runner.compiled_once(self.compiled, key, self.chunk, states, what, log)
 
     def init(self) -> TrainState:
         """Every member's initial state (its seed's, with its data values), stacked. As for

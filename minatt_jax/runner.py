@@ -218,6 +218,21 @@ def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
     return built
 
 
+def compiled_once(
+    compiled: dict[Any, Any], key: Any, jitted: Any, args: Any, what: str,
+    log: Callable[[str], None],
+) -> Any:  # fmt: skip
+    """``jitted`` compiled for ``args``, once per process: kept under ``key`` in a program's
+    ``compiled`` dict (``trainer_for``); the log says whether it compiled or reused it."""
+    if key in compiled:
+        log(f"reusing the {what} compiled for an earlier run of this program")
+    else:
+        t0 = time.perf_counter()
+        compiled[key] = jitted.lower(args).compile()
+        log(f"compiled the {what} in {time.perf_counter() - t0:.1f} s")
+    return compiled[key]
+
+
 def _resume_hint(run_dir: str) -> str:
     return f"minatt-jax train --out {run_dir} --resume"
 
@@ -295,12 +310,7 @@ def _train(
         state = jax.device_put(fresh, jax.devices()[0])  # the data values committed as well
 
     t0 = time.perf_counter()
-    if "chunk" in compiled:
-        log("reusing the training step compiled for an earlier run of this program")
-    else:
-        compiled["chunk"] = trainer.train_chunk.lower(state).compile()
-        log(f"compiled the training step in {time.perf_counter() - t0:.1f} s")
-    chunk = compiled["chunk"]
+    chunk = compiled_once(compiled, "chunk", trainer.train_chunk, state, "training step", log)
     compile_s = time.perf_counter() - t0
     writer = tensorboard(run_dir)
     eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
