@@ -17,6 +17,7 @@ class HalfCheetah(LocomotionEnv):
     frame_skip = 5
     reset_noise_scale = 0.1
     weights = RewardWeights(forward=1.0, ctrl_cost=0.1, healthy=0.0)
+    reset_runs_forward = False  # observes qpos and qvel alone
     terminates = False
     obs_names = (
         "rootz", "rooty", "bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot",

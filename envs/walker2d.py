@@ -18,6 +18,7 @@ class Walker2d(LocomotionEnv):
     frame_skip = 4
     reset_noise_scale = 5e-3
     weights = RewardWeights(forward=1.0, ctrl_cost=1e-3, healthy=1.0)
+    reset_runs_forward = False  # observes qpos and qvel alone
     obs_names = (
         "rootz", "rooty", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left",
         "vel_rootx", "vel_rootz", "vel_rooty", "vel_thigh", "vel_leg", "vel_foot",

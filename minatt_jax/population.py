@@ -1,11 +1,11 @@
 """Populations: many agents (seeds x swept values) trained in one compiled program.
 
 A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
-values). Members that differ only in fields that are *data* (``DATA_FIELDS``: the seed, the MA
-weight, the SAC learning rates, MB-MPO's inner step size; and the MA mode, full / Jacobian-only /
-temporal-only, as 0/1 term weights) share one program: their train states are stacked on a
-leading axis and every iteration is vmapped over it (the trainer's ``run_chunk``: SAC, MBPO,
-MB-MPO and DreamerV3 alike), so sweeping those values never recompiles. Members that differ in
+values). Members that differ only in fields that are *data* (``training.DATA_FIELDS``: the seed,
+the MA weight, the SAC learning rates, MB-MPO's inner step size; and the MA mode, full /
+Jacobian-only / temporal-only, as 0/1 term weights) share one program: their train states are
+stacked on a leading axis and every iteration is vmapped over it (the trainer's ``run_chunk``: SAC,
+MBPO, MB-MPO and DreamerV3 alike), so sweeping those values never recompiles. Members that differ in
 anything else (network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups,
 compiled once each and trained one after another.
 
@@ -50,7 +50,6 @@ from minatt_jax.run_files import (
     write_json_atomic,
 )
 from minatt_jax.training import (
-    DATA_FIELDS,
     Trainer,
     TrainState,
     config_field,
@@ -60,7 +59,6 @@ from minatt_jax.training import (
 )
 
 
-# Fields whose values are data in the train state: members differing only in these share a program.
 def parse_seeds(text: str) -> list[int]:
     """``"0-9"``, ``"0,3,5"`` or ``"0-3,7"`` -> a sorted list of distinct seeds (ValueError)."""
     seeds: set[int] = set()
@@ -476,16 +474,13 @@ def _train_group(
 
 
 __all__ = [
-    "DATA_FIELDS",
     "Program",
     "expand",
     "groups",
     "member_name",
     "parse_seeds",
-    "program_config",
     "share",
     "this_process",
     "train_in_stages",
     "train_population",
-    "with_data",
 ]

@@ -195,27 +195,32 @@ def _check_resumable(stored: TrainConfig, config: TrainConfig, run_dir: str) -> 
 
 # The trainers (and their compiled chunks) of this process's latest programs, newest last: runs
 # in one process (a notebook's, a sweep script's, the tests') that differ only in seed, length
-# or data values reuse them instead of tracing and compiling again.
+# or data values reuse them instead of tracing and compiling again. Evaluators likewise.
 _TRAINERS: collections.OrderedDict[TrainConfig, tuple[Trainer, dict[str, Any]]] = (
     collections.OrderedDict()
 )
-_KEEP_TRAINERS = 4
+_EVALUATORS: collections.OrderedDict[tuple[TrainConfig, int], Any] = collections.OrderedDict()
+_KEEP_PROGRAMS = 4
+
+
+def _kept(cache: collections.OrderedDict, key: Any, build: Callable[[], Any]) -> Any:
+    """``cache[key]``, built on first use; the ``_KEEP_PROGRAMS`` most recently used are kept."""
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    cache[key] = build()
+    while len(cache) > _KEEP_PROGRAMS:
+        cache.popitem(last=False)
+    return cache[key]
 
 
 def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
     """The trainer of ``config``'s program (``run_program_config``) and a dict for what the
-    runner compiles from it, built once per process (the last ``_KEEP_TRAINERS`` kept). Built
+    runner compiles from it, built once per process (the last ``_KEEP_PROGRAMS`` kept). Built
     from the program's configuration, not the run's, so nothing depends on which run came
     first: a run's own seed and data values enter its state (``init``, ``with_data``)."""
     key = run_program_config(config)
-    if key in _TRAINERS:
-        _TRAINERS.move_to_end(key)
-        return _TRAINERS[key]
-    built = (make_train(key), {})
-    _TRAINERS[key] = built
-    while len(_TRAINERS) > _KEEP_TRAINERS:
-        _TRAINERS.popitem(last=False)
-    return built
+    return _kept(_TRAINERS, key, lambda: (make_train(key), {}))
 
 
 def compiled_once(
@@ -420,8 +425,13 @@ def evaluate_run(
         except (ValueError, mujoco_engine.MissingExtraError) as e:
             raise RunError(str(e)) from None
     else:
-        evaluator = make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
-                                   episodes)  # fmt: skip
+        # One evaluator per program and episode count: runs of one program (seeds, stages,
+        # data values) evaluate without tracing and compiling again.
+        evaluator = _kept(
+            _EVALUATORS, (run_program_config(config), episodes),
+            lambda: make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
+                                   episodes),
+        )  # fmt: skip
         result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),
                            envs.stack_tasks(tasks))  # fmt: skip
         metrics = summarize(jax.device_get(result), env.dt)

@@ -7,6 +7,7 @@ inherit through the environment, lets the later ones load them instead of compil
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 
@@ -77,6 +78,41 @@ MODULE_SECONDS = {
 def pytest_configure(config: pytest.Config) -> None:
     if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order set below
         config.option.loadscopereorder = False
+    if os.environ.get("MINATT_COMPILE_LOG"):
+        _log_compilations(os.environ["MINATT_COMPILE_LOG"])
+
+
+_CURRENT_TEST = {"id": "(collection)"}
+_COMPILE_EVENTS = (
+    "/jax/core/compile/jaxpr_trace_duration",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration",
+    "/jax/core/compile/backend_compile_duration",
+)
+
+
+def _log_compilations(path: str) -> None:
+    """Appends each trace, lowering and XLA compile (or cache load) to `path` as JSON lines.
+
+    MINATT_COMPILE_LOG=/tmp/compiles.jsonl pytest ... shows where the suite's time goes: which
+    test compiles which program for how long, and which programs several tests compile alike.
+    """
+    from jax import monitoring
+
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+
+    def listen(event: str, seconds: float, **kwargs: object) -> None:
+        if event in _COMPILE_EVENTS and seconds >= 0.5:
+            line = {"test": _CURRENT_TEST["id"], "worker": worker, "event": event.rsplit("/", 1)[1]}
+            line |= {"seconds": round(seconds, 2), "fun": str(kwargs.get("fun_name", ""))}
+            with open(path, "a") as f:
+                f.write(json.dumps(line) + "\n")
+
+    monitoring.register_event_duration_secs_listener(listen)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    _CURRENT_TEST["id"] = item.nodeid
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from mujoco import mjx
 
 import minatt_jax.envs as envs
 
@@ -116,3 +118,27 @@ def test_matches_mujoco_c_engine(make_env, name):
         assert bool(state.done) == (not _reference_healthy(name, d))
     if name.startswith("humanoid"):
         assert max(contact_costs) > 1e-3  # the feet press on the floor: the term is not zero
+
+
+@pytest.mark.slow
+def test_reset_without_forward_steps_as_with_it(make_env):
+    """Environments that observe qpos and qvel alone skip the reset's ``mjx.forward`` (one MJX
+    pipeline fewer to compile in every program that resets): their observation and the steps
+    that follow are exactly those of the forwarded state."""
+    env = make_env("hopper")
+    assert not env.reset_runs_forward and make_env("humanoid").reset_runs_forward
+    state = jax.jit(env.reset)(jax.random.PRNGKey(2))
+    forwarded = state.replace(
+        pipeline_state=jax.jit(mjx.forward)(env.mjx_model, state.pipeline_state)
+    )
+    np.testing.assert_array_equal(env.observation(forwarded.pipeline_state), state.obs)
+    actions = np.random.default_rng(1).uniform(-1, 1, (10, env.action_size)).astype(np.float32)
+
+    @jax.jit
+    def rollout(s):
+        return jax.lax.scan(lambda s, a: (env.step(s, a),) * 2, s, actions)[1]
+
+    ours, reference = rollout(state), rollout(forwarded)
+    for field in ("obs", "reward", "done"):
+        np.testing.assert_array_equal(getattr(ours, field), getattr(reference, field))
+    assert float(jnp.max(jnp.abs(ours.obs[-1] - state.obs))) > 0.01  # the hopper moved

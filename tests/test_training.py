@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import os
@@ -18,7 +19,7 @@ from conftest import run_cli
 
 from minatt_jax import acting, checkpoint, runner
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
-from minatt_jax.evaluation import summarize
+from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.training import make_train
 
 LEARN = dataclasses.replace(
@@ -158,11 +159,18 @@ def test_train_rejects_bad_values(capsys):
 
 
 @pytest.mark.slow
-def test_corrupt_checkpoint_is_reported(tmp_path, capsys):
+def test_corrupt_checkpoint_is_reported(tmp_path, capsys, monkeypatch):
     run = str(tmp_path / "run")
     os.makedirs(run)
     config = with_overrides(PRESETS["smoke"], total_steps=300)
     runner.train(config, run, log=lambda m: None)
+    # Evaluations of one program (other seeds, later the CLI's) build its evaluator once.
+    built = []
+    monkeypatch.setattr(runner, "_EVALUATORS", collections.OrderedDict())
+    monkeypatch.setattr(runner, "make_evaluator",
+                        lambda *a: built.append(a) or make_evaluator(*a))  # fmt: skip
+    first, second = (runner.evaluate_run(run, None, None, seed=s) for s in (0, 1))
+    assert len(built) == 1 and first["return"] != second["return"]
     step_dir = os.path.join(run, "checkpoints", "300")
     for root, _, files in os.walk(step_dir):
         for name in files:
