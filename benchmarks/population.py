@@ -1,10 +1,10 @@
 """Population throughput: aggregate env steps/s and updates/s against the number of members N.
 
-For each N, a population of N members (seeds 0..N-1, hopper) is built as one program
-(``population.Program``), compiled, run through its warm-up, then one chunk of ``--steps`` env
-steps per member is timed after ``block_until_ready``. N = 1 is the single run's rate measured in
-the same process, so the ratio ``aggregate / (N x single)`` is side by side. Memory is the size of
-the stacked train state (replay and model buffers dominate).
+For each N, a population of N members (seeds 0..N-1, ``--env``, hopper by default) is built as
+one program (``population.Program``), compiled, run through its warm-up, then one chunk of
+``--steps`` env steps per member is timed after ``block_until_ready``. N = 1 is the single run's
+rate measured in the same process, so the ratio ``aggregate / (N x single)`` is side by side.
+Memory is the size of the stacked train state (replay and model buffers dominate).
 
     python benchmarks/population.py --algo sac --preset smoke --sizes 1 2 4 8 16 32
     python benchmarks/population.py --algo sac --preset cpu --sizes 1 2 4
@@ -29,12 +29,13 @@ from minatt_jax.config import PRESETS, with_overrides
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
-def measure(algo: str, preset: str, n: int, steps: int, buffer_size: int) -> dict:
+def measure(algo: str, preset: str, n: int, steps: int, buffer_size: int, env: str = "hopper",
+            alpha: float = 0.0) -> dict:  # fmt: skip
     """Compile time, state bytes and the timed chunk's rates for a population of ``n``."""
     base = PRESETS[preset]
     config = with_overrides(
-        base, env="hopper", algo=algo, eval_every=steps, total_steps=base.warmup_steps + steps,
-        buffer_size=buffer_size,
+        base, env=env, algo=algo, eval_every=steps, total_steps=base.warmup_steps + steps,
+        buffer_size=buffer_size, ma_alpha=alpha,
     )  # fmt: skip
     members = population.expand(config, list(range(n)), [])
     program = population.Program(members)
@@ -68,12 +69,14 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 2, 4, 8, 16])
     parser.add_argument("--steps", type=int, default=1000, help="timed env steps per member")
     parser.add_argument("--buffer-size", type=int, default=50_000, help="replay capacity")
+    parser.add_argument("--env", default="hopper")
+    parser.add_argument("--alpha", type=float, default=0.0, help="MA weight of every member")
     args = parser.parse_args()
     device = jax.devices()[0]
     name = f"{device.platform}" if device.platform != "cpu" else "cpu"
     rows = []
     for n in args.sizes:
-        row = measure(args.algo, args.preset, n, args.steps, args.buffer_size)
+        row = measure(args.algo, args.preset, n, args.steps, args.buffer_size, args.env, args.alpha)
         rows.append(row)
         print(f"N={n:4d}: {row['aggregate_env_steps_per_s']:9.1f} env steps/s in all, "
               f"compile {row['compile_s']:.1f} s", flush=True)  # fmt: skip
@@ -87,6 +90,8 @@ def main() -> None:
         "jax": jax.__version__,
         "algo": args.algo,
         "preset": args.preset,
+        "env": args.env,
+        "alpha": args.alpha,
         "steps_timed_per_member": args.steps,
         "buffer_size": args.buffer_size,
         "command": "python benchmarks/population.py "
@@ -96,6 +101,8 @@ def main() -> None:
                 f"--preset {args.preset}",
                 f"--steps {args.steps}",
                 f"--buffer-size {args.buffer_size}",
+                f"--env {args.env}",
+                f"--alpha {args.alpha:g}",
                 "--sizes",
                 *map(str, args.sizes),
             ]
@@ -103,7 +110,8 @@ def main() -> None:
         "rows": rows,
     }
     os.makedirs(RESULTS, exist_ok=True)
-    path = os.path.join(RESULTS, f"population_{args.algo}_{args.preset}_{name}.json")
+    env = "" if args.env == "hopper" else f"_{args.env}"
+    path = os.path.join(RESULTS, f"population_{args.algo}_{args.preset}{env}_{name}.json")
     with open(path, "w") as f:
         json.dump(result, f, indent=2)
     print(f"\n{result['device']}, {args.algo}, preset {args.preset}")

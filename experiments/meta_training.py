@@ -1,14 +1,15 @@
 """The paper's meta-training and meta-testing tables: SAC, MB-MPO and MB-MPO + MA per agent.
 
     python experiments/meta_training.py [--scale smoke|cpu|paper] [--steps N]
-        [--envs hopper halfcheetah walker2d humanoid] [--seeds 0-4] [--alpha 1]
+        [--envs hopper halfcheetah walker2d humanoid] [--seeds 0-4] [--alpha 1 [0.01 0.05]]
         [--placement actor_loss] [--normalize-reward] [--variants mass crippled slope]
         [--no-meta-test] [--collect-only] [--runs runs/meta_training]
 
-Members: per environment SAC (alpha 0), MB-MPO (alpha 0) and MB-MPO + MA (``--alpha``, the
-paper's tables use 1; ``--placement``/``--normalize-reward`` pick the reading of MA), every seed,
-as one population (``population.train_population``: one compiled program per environment and
-algorithm, seeds and alphas vmapped). Training goes stage by stage: the paper's stages (10K /
+Members: per environment SAC (alpha 0), MB-MPO (alpha 0) and MB-MPO + MA at each ``--alpha``
+(the paper's tables use 1, HalfCheetah's Tables S1-S2 also 0.01 and 0.05; ``--placement`` /
+``--normalize-reward`` pick the reading of MA), every seed, as one population
+(``population.train_population``: one compiled program per environment and algorithm, seeds
+and alphas vmapped). Training goes stage by stage: the paper's stages (10K /
 100K / 200K) that the scale reaches, and the last step. At each stage every member is
 meta-tested (``meta_test.meta_test``: 1 real episode per task, 10 adaptation steps) on each
 ``--variants`` task set, since only the latest checkpoints are kept. Running the command again
@@ -19,7 +20,9 @@ Per environment (one population under ``<runs>/<env>/<tag>``, trained and tabula
 each agent's table is written when it finishes) writes
 ``experiments/results/meta_training_<tag>_<env>.{json,md}``, the adaptation curves
 ``meta_testing_<tag>_<env>.png`` and an ``analyze`` report of its members
-(``meta_training_<tag>_<env>_report/``; ``--no-report`` skips it). The tables: per stage and
+(``meta_training_<tag>_<env>_report/``; ``--no-report`` skips it). With alphas other than 1 alone,
+each alpha's table and curves carry ``_alpha<a>`` (SAC and MB-MPO shared by all of them) and the
+population lives under ``<runs>/<env>/alpha<a>_<b>/<tag>``. The tables: per stage and
 arm, mean +- std over seeds [95% bootstrap interval of the mean], the difference from MB-MPO
 (direction when its interval excludes zero), and the paper's numbers beside ours
 (``minatt_jax.paper_numbers``).
@@ -33,6 +36,7 @@ import functools
 import json
 import os
 import shutil
+import sys
 from typing import Any
 
 import numpy as np
@@ -48,19 +52,48 @@ ENV_NAMES = {"hopper": "Hopper", "halfcheetah": "HalfCheetah", "walker2d": "Walk
              "humanoid": "Humanoid"}  # fmt: skip
 
 
-def arms(alpha: float) -> list[tuple[str, str, float]]:
-    """(arm, algo, alpha): the paper's three columns."""
-    return [("sac", "sac", 0.0), ("mbmpo", "mbmpo", 0.0), ("ma", "mbmpo", alpha)]
+def arms(alphas: list[float]) -> list[tuple[str, str, float]]:
+    """(arm, algo, alpha): the paper's three columns, MA once per alpha."""
+    return [("sac", "sac", 0.0), ("mbmpo", "mbmpo", 0.0)] + [
+        (ma_arm(a), "mbmpo", a) for a in alphas
+    ]
+
+
+def ma_arm(alpha: float) -> str:
+    return f"ma alpha={alpha:g}"
 
 
 def arm_of(config: Any) -> str:
-    return "sac" if config.algo == "sac" else ("ma" if config.ma.alpha > 0 else "mbmpo")
+    if config.algo == "sac":
+        return "sac"
+    return ma_arm(config.ma.alpha) if config.ma.alpha > 0 else "mbmpo"
+
+
+def alpha_list(args: argparse.Namespace) -> list[float]:
+    """``--alpha`` as a list (one value or several), without repeats; alpha 0 is MB-MPO's arm
+    already, so it exits 2."""
+    alphas = list(dict.fromkeys(args.alpha if isinstance(args.alpha, list) else [args.alpha]))
+    if any(a <= 0 for a in alphas):
+        print("meta_training.py: --alpha takes MA weights above 0 (MB-MPO is alpha 0 already)",
+              file=sys.stderr)  # fmt: skip
+        raise SystemExit(2)
+    return alphas
+
+
+def alpha_suffix(alphas: list[float], alpha: float | None = None) -> str:
+    """'' for the paper's alpha 1 alone; else '_alpha<a>' (one alpha's files) or, for the
+    population's folder, 'alpha<a>_<b>'."""
+    if alphas == [1.0]:
+        return ""
+    if alpha is not None:
+        return f"_alpha{alpha:g}"
+    return "alpha" + "_".join(f"{a:g}" for a in alphas)
 
 
 def members(args: argparse.Namespace) -> list[Any]:
     out, base = [], xt.study_preset(args)
     for env in args.envs:
-        for _, algo, alpha in arms(args.alpha):
+        for _, algo, alpha in arms(alpha_list(args)):
             for seed in population.parse_seeds(args.seeds):
                 out.append(resolve(with_overrides(
                     base, env=env, algo=algo, seed=seed, ma_alpha=alpha,
@@ -94,19 +127,21 @@ def meta_test_stage(step: int, dirs: list[str], variants: list[str]) -> None:
 
 def collect(configs: list[Any], out_dir: str, steps: list[int], alpha: float,
             variants: list[str]) -> dict[str, Any]:  # fmt: skip
-    """Per environment, stage and arm: the meta-training and meta-testing statistics."""
+    """Per environment, stage and arm (sac, mbmpo, ma: MA at ``alpha``): the meta-training and
+    meta-testing statistics."""
     out: dict[str, Any] = {}
     for env in dict.fromkeys(c.env for c in configs):
         env_out: dict[str, Any] = {"meta_training": {}, "meta_testing": {}}
         found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
-        dirs = {arm: found.get(arm, []) for arm, _, _ in arms(alpha)}
+        dirs = {arm: found.get(arm, []) for arm in ("sac", "mbmpo")}
+        dirs["ma"] = found.get(ma_arm(alpha), [])
         for step in steps:
             train_rows, test_rows = xt.training_rows(dirs, step, baseline="mbmpo"), {}
             tests = {arm: [[_read(p) for v in variants
                             if os.path.exists(p := meta_test_path(d, v, step))]
-                           for d in dirs[arm]]
-                     for arm, _, _ in arms(alpha)}  # fmt: skip
-            for arm, _, _ in arms(alpha):
+                           for d in arm_dirs]
+                     for arm, arm_dirs in dirs.items()}  # fmt: skip
+            for arm in dirs:
                 test_rows[arm] = xt.meta_test_rows(tests[arm], tests["mbmpo"] if arm == "ma"
                                                  else None, variants)  # fmt: skip
             env_out["meta_training"][str(step)] = train_rows
@@ -127,7 +162,7 @@ def task_sets(variants: list[str]) -> list[str]:
 
 def markdown(result: dict[str, Any], alpha: float, variants: list[str]) -> str:
     lines = [
-        f"# Meta-training and meta-testing tables ({result['tag']})",
+        f"# Meta-training and meta-testing tables ({result['tag']}, MA alpha {alpha:g})",
         "",
         f"`{result['command']}` on {result['device']}, {result['date']}. Deterministic "
         "evaluation of each member at each stage; mean +- std over seeds [95% bootstrap "
@@ -194,7 +229,8 @@ def plot_adaptation(result: dict[str, Any], env: str, variants: list[str], path:
     plots.save_figure(fig, path)
 
 
-def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str) -> None:
+def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str,
+                  suffix: str = "") -> None:  # fmt: skip
     """``minatt-jax analyze`` on every member of each environment (K(t)x + v(t), heatmaps,
     failure grid, maturation at the stages); its figures and tables are copied beside the
     tables (``report.html`` stays under the runs)."""
@@ -207,7 +243,7 @@ def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str) 
         argv = ["analyze", *dirs, "--out", report, "--maturation-steps", *map(str, steps)]
         if cli(argv) != 0:
             raise SystemExit(f"meta_training: analyze failed for {env}")
-        target = os.path.join(RESULTS, f"meta_training_{tag}_{env}_report")
+        target = os.path.join(RESULTS, f"meta_training_{tag}_{env}{suffix}_report")
         os.makedirs(target, exist_ok=True)
         for name in os.listdir(report):
             if name.endswith((".png", ".md", ".json")):
@@ -216,33 +252,38 @@ def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    xt.add_study_arguments(parser, envs=list(ENV_NAMES), runs="runs/meta_training")
+    xt.add_study_arguments(parser, envs=list(ENV_NAMES), runs="runs/meta_training",
+                           several_alphas=True)  # fmt: skip
     parser.add_argument("--variants", nargs="*", default=["mass", "crippled", "slope"])
     parser.add_argument("--no-meta-test", action="store_true")
     parser.add_argument("--no-report", action="store_true", help="skip the analyze reports")
     args = parser.parse_args()
+    alphas = alpha_list(args)
     variants = [] if args.no_meta_test else args.variants
     at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
     for env in args.envs:  # one population, table and report per agent, written as it finishes
-        one = argparse.Namespace(**{**vars(args), "envs": [env],
-                                    "runs": os.path.join(args.runs, env)})  # fmt: skip
+        runs = os.path.join(args.runs, env, alpha_suffix(alphas))
+        one = argparse.Namespace(**{**vars(args), "envs": [env], "runs": runs})
         configs = members(one)
         steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage)
         command = xt.study_command("meta_training.py", one, f" --variants {' '.join(variants)}"
                                    if variants else " --no-meta-test")  # fmt: skip
-        result = {"tag": tag, **xt.provenance(command), "stages": steps,
-                  "alpha": args.alpha, "placement": configs[-1].ma.placement,
-                  "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
-                  "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
-                  "tables": collect(configs, out_dir, steps, args.alpha, variants)}  # fmt: skip
-        text = markdown(result, args.alpha, variants)
-        xt.write_study(RESULTS, f"meta_training_{tag}_{env}", result, text)
-        if variants:
-            plot_adaptation(result, env, variants,
-                            os.path.join(RESULTS, f"meta_testing_{tag}_{env}.png"))  # fmt: skip
+        for alpha in alphas:  # one table per alpha, each against the same SAC and MB-MPO
+            result = {"tag": tag, **xt.provenance(command), "stages": steps,
+                      "alpha": alpha, "placement": configs[-1].ma.placement,
+                      "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
+                      "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
+                      "tables": collect(configs, out_dir, steps, alpha, variants)}  # fmt: skip
+            text = markdown(result, alpha, variants)
+            name = f"{tag}_{env}{alpha_suffix(alphas, alpha)}"
+            xt.write_study(RESULTS, f"meta_training_{name}", result, text)
+            if variants:
+                plot_adaptation(result, env, variants,
+                                os.path.join(RESULTS, f"meta_testing_{name}.png"))  # fmt: skip
+            print(text, flush=True)
         if not args.no_report:
-            write_reports(configs, out_dir, steps, tag)
-        print(text, flush=True)
+            folder = alpha_suffix(alphas)
+            write_reports(configs, out_dir, steps, tag, f"_{folder}" if folder else "")
 
 
 if __name__ == "__main__":

@@ -149,17 +149,21 @@ def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None
 
 
 def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: str,
-                        reuse: bool = False) -> None:  # fmt: skip
-    """The options every study script takes: scale, length, environments, seeds, alpha, the
-    reading of MA, configuration overrides, --collect-only and where the runs go; with
-    ``reuse``, ``--reuse FOLDER`` (``reused_runs``)."""
+                        reuse: bool = False, several_alphas: bool = False) -> None:  # fmt: skip
+    """The options every study script takes: scale, length, environments, seeds, alpha (a
+    list with ``several_alphas``), the reading of MA, configuration overrides, --collect-only
+    and where the runs go; with ``reuse``, ``--reuse FOLDER`` (``reused_runs``)."""
     from minatt_jax.config import PRESETS
 
     parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
     parser.add_argument("--steps", type=int, default=None, help="default: the scale's preset")
     parser.add_argument("--envs", nargs="+", default=envs)
     parser.add_argument("--seeds", default="0-4")
-    parser.add_argument("--alpha", type=float, default=1.0)
+    if several_alphas:
+        parser.add_argument("--alpha", type=float, nargs="+", default=[1.0],
+                            help="MA weights, one MA arm each (default: 1)")  # fmt: skip
+    else:
+        parser.add_argument("--alpha", type=float, default=1.0)
     parser.add_argument("--placement", default=None, help="default: the library's")
     parser.add_argument("--normalize-reward", action="store_true", default=None)
     parser.add_argument("--collect-only", action="store_true",
@@ -198,7 +202,8 @@ def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str
     """The command line that reproduces a study's result (for its provenance)."""
     return (f"python experiments/{script} --scale {args.scale}"
             + (f" --steps {args.steps}" if args.steps else "")
-            + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha {args.alpha:g}"
+            + f" --envs {' '.join(args.envs)} --seeds {args.seeds} --alpha "
+            + " ".join(f"{a:g}" for a in np.atleast_1d(args.alpha))
             + (f" --placement {args.placement}" if args.placement else "")
             + (" --normalize-reward" if args.normalize_reward else "")
             + "".join(f" --set {o}" for o in args.overrides)

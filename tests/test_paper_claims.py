@@ -142,3 +142,36 @@ def test_the_ablation_claim_reads_the_latest_stage_and_needs_five_seeds(tmp_path
     claim = paper_claims.ablation_claim()
     assert claim["verdict"] == "reproduced", claim
     assert "(paper)" in claim["ours"] and "jacobian 6" in claim["ours"]
+
+
+def test_several_alphas_give_one_table_each_against_the_same_baseline(tmp_path, capsys):
+    """``--alpha 0.01 0.05``: SAC and MB-MPO once, an MA arm per alpha; each alpha's table reads
+    only its own MA members, and its files carry the alpha (alpha 1 alone keeps the old names);
+    alpha 0 is refused with exit status 2."""
+    parser = meta_training.argparse.ArgumentParser()
+    meta_training.xt.add_study_arguments(parser, envs=["halfcheetah"], runs=str(tmp_path),
+                                         several_alphas=True)  # fmt: skip
+    args = parser.parse_args(["--scale", "smoke", "--steps", "10000", "--alpha", "0.01", "0.05"])
+    configs = meta_training.members(args)
+    arms = [meta_training.arm_of(c) for c in configs]
+    assert {a: arms.count(a) for a in arms} == {"sac": 5, "mbmpo": 5, "ma alpha=0.01": 5,
+                                                "ma alpha=0.05": 5}  # fmt: skip
+    for c in configs:  # MA's return is 1000 x its alpha, MB-MPO's and SAC's 0
+        metrics = {"return": 1000.0 * c.ma.alpha, "feedback_norm": 1.0, "feedforward_norm": 1.0,
+                   "energy": 1.0}  # fmt: skip
+        name = meta_training.population.member_name(c, meta_training.SWEPT)
+        write_run(str(tmp_path / name), 10_000, metrics, {"crippled": 0.0})
+    for alpha in (0.01, 0.05):
+        tables = meta_training.collect(configs, str(tmp_path), [10_000], alpha, ["crippled"])
+        rows = tables["halfcheetah"]["meta_training"]["10000"]
+        assert rows["ma"]["seeds"] == 5 and rows["ma"]["return"]["mean"] == pytest.approx(
+            1000 * alpha
+        )
+        assert rows["mbmpo"]["return"]["mean"] == 0.0
+    assert meta_training.alpha_suffix([1.0]) == "" and meta_training.alpha_suffix([1.0], 1.0) == ""
+    assert meta_training.alpha_suffix([0.01, 0.05], 0.05) == "_alpha0.05"
+    assert meta_training.alpha_suffix([0.01, 0.05]) == "alpha0.01_0.05"
+    assert "--alpha 0.01 0.05" in meta_training.xt.study_command("meta_training.py", args)
+    with pytest.raises(SystemExit) as stop:
+        meta_training.alpha_list(parser.parse_args(["--alpha", "0", "1"]))
+    assert stop.value.code == 2 and "above 0" in capsys.readouterr().err
