@@ -40,11 +40,10 @@ import numpy as np
 import minatt_jax.envs as envs
 from minatt_jax import acting, checkpoint, imagination, replay, runner
 from minatt_jax import normalizer as obs_norm
-from minatt_jax.config import replace_fields
 from minatt_jax.dynamics_ensemble import make_ensemble
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.maml import Trajectories, make_meta_step
-from minatt_jax.training import make_meta
+from minatt_jax.training import make_meta, run_program_config
 
 REPORTED = ("return", "feedback_norm", "feedforward_norm", "energy")
 
@@ -140,17 +139,15 @@ def _adaptation_reads_model(config: Any) -> bool:
 def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
               settings: MetaTestConfig) -> Any:  # fmt: skip
     """The meta-test's compiled functions (evaluate, collect, refit, adapt, policy_params) for
-    one configuration, built once per process: a run's own arrays (agent, normalizer, return
-    statistics, model) are their arguments, so meta-testing many runs of one configuration
-    (seeds, stages, task sets) compiles once; so are the inner step size and MA's weight in the
-    adaptation (swept by ``experiments/adaptation_step.py``). Keyed by the configuration but its
-    seed, length and inner step size, and the settings but those."""
-    unkeyed = {"seed": 0, "total_steps": 1}
-    if config.model_based:
-        unkeyed["mb.meta_inner_lr"] = 0.0
+    one program, built once per process: a run's own arrays (agent with its MA weight and
+    learning rates, normalizer, return statistics, model) are their arguments, so meta-testing
+    the runs of one program (seeds, alphas, learning rates, stages, task sets) compiles once; so
+    are the inner step size and MA's weight in the adaptation (swept by
+    ``experiments/adaptation_step.py``). Keyed by the run's program
+    (``training.run_program_config``) and the settings but those."""
     swept = dataclasses.replace(settings, seed=0, inner_lr=None, adapt_alpha=None,
                                 refit_model=True)  # fmt: skip
-    key = json.dumps([replace_fields(config, unkeyed).to_dict(), repr(swept)], sort_keys=True,
+    key = json.dumps([run_program_config(config).to_dict(), repr(swept)], sort_keys=True,
                      default=str)  # fmt: skip
     if key in _PROGRAMS:
         return _PROGRAMS[key]

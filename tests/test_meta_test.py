@@ -27,29 +27,36 @@ def main(argv):
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("meta_test_runs")
     out = {}
-    for name, algo, seed in (("sac", "sac", 0), ("mbmpo", "mbmpo", 0), ("sac_seed1", "sac", 1)):
+    for name, algo, seed, alpha in (("sac", "sac", 0, "1"), ("mbmpo", "mbmpo", 0, "1"),
+                                    ("sac_seed1", "sac", 1, "1"),
+                                    ("sac_alpha0.2", "sac", 1, "0.2")):  # fmt: skip
         run_dir = str(root / name)
         argv = ["train", "--env", "hopper", "--algo", algo, "--preset", "smoke", "--steps", "300",
-                "--alpha", "1", "--seed", str(seed), "--out", run_dir]  # fmt: skip
+                "--alpha", alpha, "--seed", str(seed), "--out", run_dir]  # fmt: skip
         assert main(argv) == 0
         out[name] = run_dir
     return out
 
 
 def test_meta_testing_runs_of_one_configuration_compiles_once(runs):
-    """Two seeds' runs and two task sets share the compiled programs, and a run's results do
-    not depend on which run compiled them (its arrays are arguments, not constants)."""
+    """Runs of two seeds and two MA weights and two task sets share the compiled programs, and
+    a run's results do not depend on which run compiled them (its arrays, its MA weight among
+    them, are arguments, not constants)."""
     settings = meta_test.MetaTestConfig(adapt_steps=2, episodes=1, updates_per_step=3)
     meta_test._PROGRAMS.clear()
     meta_test.meta_test(runs["sac"], "mass", settings, log=lambda _: None)
     shared = meta_test.meta_test(runs["sac_seed1"], "crippled", settings, log=lambda _: None)
+    other_alpha = meta_test.meta_test(runs["sac_alpha0.2"], "crippled", settings,
+                                      log=lambda _: None)  # fmt: skip
     assert len(meta_test._PROGRAMS) == 1
     (programs,) = meta_test._PROGRAMS.values()
     for fn in (programs.adapt, programs.evaluate, programs.collect):
         assert fn._cache_size() == 1
-    meta_test._PROGRAMS.clear()
-    alone = meta_test.meta_test(runs["sac_seed1"], "crippled", settings, log=lambda _: None)
-    assert shared["tasks"] == alone["tasks"]
+    assert other_alpha["tasks"] != shared["tasks"]  # the other weight trained another policy
+    for name, result in (("sac_seed1", shared), ("sac_alpha0.2", other_alpha)):
+        meta_test._PROGRAMS.clear()
+        alone = meta_test.meta_test(runs[name], "crippled", settings, log=lambda _: None)
+        assert result["tasks"] == alone["tasks"]
 
 
 @pytest.mark.parametrize("algo", ["sac", "mbmpo"])
