@@ -27,7 +27,9 @@ program. Returns per task and per step: return, feedback norm, feedforward norm,
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import functools
 import json
 import types
 from collections.abc import Callable
@@ -126,7 +128,7 @@ def _distance(a: Any, b: Any) -> float:
     return float(jnp.sqrt(sum(jax.tree.leaves(squares))))
 
 
-_PROGRAMS: dict[str, Any] = {}
+_PROGRAMS: collections.OrderedDict[str, Any] = collections.OrderedDict()
 
 
 def _adaptation_reads_model(config: Any) -> bool:
@@ -139,18 +141,23 @@ def _adaptation_reads_model(config: Any) -> bool:
 def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
               settings: MetaTestConfig) -> Any:  # fmt: skip
     """The meta-test's compiled functions (evaluate, collect, refit, adapt, policy_params) for
-    one program, built once per process: a run's own arrays (agent with its MA weight and
-    learning rates, normalizer, return statistics, model) are their arguments, so meta-testing
-    the runs of one program (seeds, alphas, learning rates, stages, task sets) compiles once; so
-    are the inner step size and MA's weight in the adaptation (swept by
-    ``experiments/adaptation_step.py``). Keyed by the run's program
-    (``training.run_program_config``) and the settings but those."""
+    one program, built once per process (the latest few kept, ``runner.keep_latest``): a run's
+    own arrays (agent with its MA weight and learning rates, normalizer, return statistics,
+    model) are their arguments, so meta-testing the runs of one program (seeds, alphas,
+    learning rates, stages, task sets) compiles once; so are the inner step size and MA's
+    weight in the adaptation (swept by ``experiments/adaptation_step.py``). Keyed by the run's
+    program (``training.run_program_config``) and the settings but those."""
     swept = dataclasses.replace(settings, seed=0, inner_lr=None, adapt_alpha=None,
                                 refit_model=True)  # fmt: skip
     key = json.dumps([run_program_config(config).to_dict(), repr(swept)], sort_keys=True,
                      default=str)  # fmt: skip
-    if key in _PROGRAMS:
-        return _PROGRAMS[key]
+    build = functools.partial(_build_programs, config, env, sac, kind, ensemble, settings)
+    return runner.keep_latest(_PROGRAMS, key, build)
+
+
+def _build_programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
+                    settings: MetaTestConfig) -> Any:  # fmt: skip
+    """``_programs``' functions, compiled on first call."""
     model_based = config.model_based
     dreamer = config.algo == "dreamer"
     norm_on = config.sac.normalize_obs
@@ -242,10 +249,8 @@ def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
 
             return agent.replace(actor_params=inner(agent.actor_params, k_inner))
 
-    programs = types.SimpleNamespace(evaluate=evaluator, collect=collect, refit=refit,
-                                     adapt=adapt, policy_params=policy_params)  # fmt: skip
-    _PROGRAMS[key] = programs
-    return programs
+    return types.SimpleNamespace(evaluate=evaluator, collect=collect, refit=refit, adapt=adapt,
+                                 policy_params=policy_params)  # fmt: skip
 
 
 def meta_test(

@@ -203,8 +203,9 @@ _EVALUATORS: collections.OrderedDict[tuple[TrainConfig, int], Any] = collections
 _KEEP_PROGRAMS = 4
 
 
-def _kept(cache: collections.OrderedDict, key: Any, build: Callable[[], Any]) -> Any:
-    """``cache[key]``, built on first use; the ``_KEEP_PROGRAMS`` most recently used are kept."""
+def keep_latest(cache: collections.OrderedDict, key: Any, build: Callable[[], Any]) -> Any:
+    """``cache[key]``, built on first use; the ``_KEEP_PROGRAMS`` most recently used are kept
+    (a process's compiled programs: trainers, evaluators, meta-tests)."""
     if key in cache:
         cache.move_to_end(key)
         return cache[key]
@@ -220,7 +221,7 @@ def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
     from the program's configuration, not the run's, so nothing depends on which run came
     first: a run's own seed and data values enter its state (``init``, ``with_data``)."""
     key = run_program_config(config)
-    return _kept(_TRAINERS, key, lambda: (make_train(key), {}))
+    return keep_latest(_TRAINERS, key, lambda: (make_train(key), {}))
 
 
 def compiled_once(
@@ -427,7 +428,7 @@ def evaluate_run(
     else:
         # One evaluator per program and episode count: runs of one program (seeds, stages,
         # data values) evaluate without tracing and compiling again.
-        evaluator = _kept(
+        evaluator = keep_latest(
             _EVALUATORS, (run_program_config(config), episodes),
             lambda: make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
                                    episodes),
