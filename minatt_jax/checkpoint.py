@@ -160,12 +160,12 @@ def all_steps(run_dir: str) -> list[int]:
         return sorted(manager.all_steps())
 
 
-def set_aside(run_dir: str, step: int) -> str:
-    """Moves checkpoint ``step`` (an unreadable one) out of ``checkpoints/`` into
-    ``checkpoints_unreadable/``, so training can go on from an older one and save over its step
-    again; the files are kept for inspection. Returns where they went."""
+def set_aside(run_dir: str, step: int, folder: str = "checkpoints_unreadable") -> str:
+    """Moves checkpoint ``step`` (an unreadable one, or one ahead of its population's) out of
+    ``checkpoints/`` into ``folder``, so training can go on from an older one and save over its
+    step again; the files are kept for inspection. Returns where they went."""
     source = os.path.join(run_dir, "checkpoints", str(step))
-    target_dir = os.path.join(run_dir, "checkpoints_unreadable")
+    target_dir = os.path.join(run_dir, folder)
     os.makedirs(target_dir, exist_ok=True)
     target = os.path.join(target_dir, f"{step}-{os.getpid()}")
     os.replace(source, target)

@@ -390,6 +390,27 @@ def train_in_stages(
     return dirs
 
 
+def _common_checkpoint(dirs: list[str], latest: set[int | None],
+                       log: Callable[[str], None]) -> int:  # fmt: skip
+    """The newest step of which every member has a checkpoint, when the members' latest differ
+    (a stop came while the population saved its members one by one): the newer checkpoints are
+    set aside (``checkpoints_ahead/``, kept) so that training saves over their steps again.
+    RunError when no step is common to all."""
+    have = [set(checkpoint.all_steps(d)) for d in dirs]
+    common = set.intersection(*have)
+    if not common:
+        raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, latest))}) "
+                       "and no checkpoint step is common to all of them")  # fmt: skip
+    step = max(common)
+    for d, steps in zip(dirs, have, strict=True):
+        for newer in sorted(s for s in steps if s > step):
+            checkpoint.set_aside(d, newer, folder="checkpoints_ahead")
+    log(f"the members' latest checkpoints differ ({sorted(map(str, latest))}): a stop came "
+        f"while the population saved; every member resumes from checkpoint {step} (the newer "
+        "ones are kept in <member>/checkpoints_ahead)")  # fmt: skip
+    return step
+
+
 def _train_group(
     program: Program,
     dirs: list[str],
@@ -399,9 +420,7 @@ def _train_group(
 ) -> list[dict[str, Any]]:
     config, trainer = program.config, program.trainer
     steps = {checkpoint.latest_step(d) for d in dirs} if resume else {None}
-    if len(steps) != 1:
-        raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, steps))})")
-    step = steps.pop()
+    step = steps.pop() if len(steps) == 1 else _common_checkpoint(dirs, steps, log)
     if step is not None and step >= program.length:
         log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
         return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -13,7 +14,7 @@ import jax
 import numpy as np
 import pytest
 
-from minatt_jax import population, runner
+from minatt_jax import checkpoint, population, runner
 from minatt_jax import training as train_module
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
@@ -179,6 +180,19 @@ def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
         b = runner.read_metrics(os.path.join(split, name))
         assert [r["step"] for r in a] == [300, 600]
         assert runner.without_timings(a) == runner.without_timings(b)
+    # A stop while the population saved: one member lacks checkpoint 600. The resume goes on
+    # from 300 for every member, sets the others' 600 aside and ends where the straight run did.
+    torn = str(tmp_path / "torn")
+    shutil.copytree(split, torn)
+    shutil.rmtree(os.path.join(torn, names[1], "checkpoints", "600"))
+    lines = []
+    population.train_in_stages(members, torn, ["ma.alpha"], [600], log=lines.append)
+    assert any("resumes from checkpoint 300" in line for line in lines)
+    for name in names:
+        assert checkpoint.latest_step(os.path.join(torn, name)) == 600
+        ours, straight_run = (runner.read_metrics(os.path.join(f, name)) for f in (torn, straight))
+        assert runner.without_timings(ours) == runner.without_timings(straight_run)
+    assert os.listdir(os.path.join(torn, names[0], "checkpoints_ahead"))
     # The same population with its members split over two (forced host) devices.
     sharded = str(tmp_path / "sharded")
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
