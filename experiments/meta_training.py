@@ -80,14 +80,16 @@ def alpha_list(args: argparse.Namespace) -> list[float]:
     return alphas
 
 
-def alpha_suffix(alphas: list[float], alpha: float | None = None) -> str:
-    """'' for the paper's alpha 1 alone; else '_alpha<a>' (one alpha's files) or, for the
-    population's folder, 'alpha<a>_<b>'."""
-    if alphas == [1.0]:
-        return ""
-    if alpha is not None:
-        return f"_alpha{alpha:g}"
-    return "alpha" + "_".join(f"{a:g}" for a in alphas)
+def alpha_suffix(alphas: list[float], alpha: float) -> str:
+    """What one alpha's result files add to their name: '' for the paper's alpha 1 alone,
+    else '_alpha<a>'."""
+    return "" if alphas == [1.0] else f"_alpha{alpha:g}"
+
+
+def alphas_folder(alphas: list[float]) -> str:
+    """The population's folder under ``<runs>/<env>``: '' for alpha 1 alone, else
+    'alpha<a>_<b>'."""
+    return "" if alphas == [1.0] else "alpha" + "_".join(f"{a:g}" for a in alphas)
 
 
 def members(args: argparse.Namespace) -> list[Any]:
@@ -262,7 +264,7 @@ def main() -> None:
     variants = [] if args.no_meta_test else args.variants
     at_stage = functools.partial(meta_test_stage, variants=variants) if variants else None
     for env in args.envs:  # one population, table and report per agent, written as it finishes
-        runs = os.path.join(args.runs, env, alpha_suffix(alphas))
+        runs = os.path.join(args.runs, env, alphas_folder(alphas))
         one = argparse.Namespace(**{**vars(args), "envs": [env], "runs": runs})
         configs = members(one)
         steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage)
@@ -282,7 +284,7 @@ def main() -> None:
                                 os.path.join(RESULTS, f"meta_testing_{name}.png"))  # fmt: skip
             print(text, flush=True)
         if not args.no_report:
-            folder = alpha_suffix(alphas)
+            folder = alphas_folder(alphas)
             write_reports(configs, out_dir, steps, tag, f"_{folder}" if folder else "")
 
 

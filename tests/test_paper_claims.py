@@ -168,9 +168,9 @@ def test_several_alphas_give_one_table_each_against_the_same_baseline(tmp_path, 
             1000 * alpha
         )
         assert rows["mbmpo"]["return"]["mean"] == 0.0
-    assert meta_training.alpha_suffix([1.0]) == "" and meta_training.alpha_suffix([1.0], 1.0) == ""
+    assert meta_training.alphas_folder([1.0]) == "" and meta_training.alpha_suffix([1.0], 1.0) == ""
     assert meta_training.alpha_suffix([0.01, 0.05], 0.05) == "_alpha0.05"
-    assert meta_training.alpha_suffix([0.01, 0.05]) == "alpha0.01_0.05"
+    assert meta_training.alphas_folder([0.01, 0.05]) == "alpha0.01_0.05"
     assert "--alpha 0.01 0.05" in meta_training.xt.study_command("meta_training.py", args)
     with pytest.raises(SystemExit) as stop:
         meta_training.alpha_list(parser.parse_args(["--alpha", "0", "1"]))
