@@ -4,6 +4,7 @@
         [--envs hopper halfcheetah walker2d humanoid] [--seeds 0-4] [--alpha 1 [0.01 0.05]]
         [--placement actor_loss] [--normalize-reward] [--variants mass crippled slope]
         [--no-meta-test] [--collect-only] [--runs runs/meta_training]
+        [--records experiments/records]
 
 Members: per environment SAC (alpha 0), MB-MPO (alpha 0) and MB-MPO + MA at each ``--alpha``
 (the paper's tables use 1, HalfCheetah's Tables S1-S2 also 0.01 and 0.05; ``--placement`` /
@@ -26,6 +27,13 @@ population lives under ``<runs>/<env>/alpha<a>_<b>/<tag>``. The tables: per stag
 arm, mean +- std over seeds [95% bootstrap interval of the mean], the difference from MB-MPO
 (direction when its interval excludes zero), and the paper's numbers beside ours
 (``minatt_jax.paper_numbers``).
+
+A grid longer than a machine keeps its runs: ``--records experiments/records`` copies each
+member's results (config.json, metrics.jsonl, meta-tests; kilobytes) there once it reached
+every stage, and the next call reads members kept there instead of training them. So
+``--seeds 0-1`` on one machine, ``--seeds 2-4`` on another (commit the records between) and
+``--seeds 0-4`` tabulates all ten without training; the analyze report needs checkpoints and
+is skipped for tables that read records.
 """
 
 from __future__ import annotations
@@ -37,12 +45,13 @@ import json
 import os
 import shutil
 import sys
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from minatt_jax import checkpoint, meta_test, paper_numbers, plots, population, runner
 from minatt_jax import experiment_tables as xt
-from minatt_jax import meta_test, paper_numbers, plots, population, runner
 from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -109,6 +118,12 @@ def meta_test_path(run_dir: str, variant: str, step: int) -> str:
     return os.path.join(run_dir, "meta_test", f"{variant}_{step}.json")
 
 
+def meta_tested(variants: list[str], steps: list[int]) -> Callable[[str], bool]:
+    """Whether a run holds its meta-tests on every variant at every stage: a member read from
+    elsewhere has no checkpoints to meta-test again."""
+    return lambda d: all(os.path.exists(meta_test_path(d, v, s)) for v in variants for s in steps)
+
+
 def meta_test_stage(step: int, dirs: list[str], variants: list[str]) -> None:
     """Meta-tests every member at ``step`` (its latest checkpoint) on every variant, once."""
     settings = meta_test.MetaTestConfig()
@@ -128,13 +143,14 @@ def meta_test_stage(step: int, dirs: list[str], variants: list[str]) -> None:
 
 
 def collect(configs: list[Any], out_dir: str, steps: list[int], alpha: float,
-            variants: list[str]) -> dict[str, Any]:  # fmt: skip
+            variants: list[str],
+            reused: dict[int, str] | None = None) -> dict[str, Any]:  # fmt: skip
     """Per environment, stage and arm (sac, mbmpo, ma: MA at ``alpha``): the meta-training and
-    meta-testing statistics."""
+    meta-testing statistics (``reused`` members read where they were found)."""
     out: dict[str, Any] = {}
     for env in dict.fromkeys(c.env for c in configs):
         env_out: dict[str, Any] = {"meta_training": {}, "meta_testing": {}}
-        found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of)
+        found = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused)
         dirs = {arm: found.get(arm, []) for arm in ("sac", "mbmpo")}
         dirs["ma"] = found.get(ma_arm(alpha), [])
         for step in steps:
@@ -232,15 +248,20 @@ def plot_adaptation(result: dict[str, Any], env: str, variants: list[str], path:
 
 
 def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str,
-                  suffix: str = "") -> None:  # fmt: skip
+                  suffix: str = "", reused: dict[int, str] | None = None) -> None:  # fmt: skip
     """``minatt-jax analyze`` on every member of each environment (K(t)x + v(t), heatmaps,
     failure grid, maturation at the stages); its figures and tables are copied beside the
-    tables (``report.html`` stays under the runs)."""
+    tables (``report.html`` stays under the runs). Skipped, said once, where members were
+    read from records (no checkpoints to analyze)."""
     from minatt_jax.cli import main as cli
 
     for env in dict.fromkeys(c.env for c in configs):
-        dirs = [os.path.join(out_dir, population.member_name(c, SWEPT)) for c in configs
-                if c.env == env]  # fmt: skip
+        dirs = [d for arm in xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused).values()
+                for d in arm]  # fmt: skip
+        if missing := [d for d in dirs if checkpoint.latest_step(d) is None]:
+            print(f"meta_training: no analyze report for {env}: {len(missing)} members have no "
+                  f"checkpoint here (e.g. {missing[0]})", flush=True)  # fmt: skip
+            continue
         report = os.path.join(out_dir, "reports", env)
         argv = ["analyze", *dirs, "--out", report, "--maturation-steps", *map(str, steps)]
         if cli(argv) != 0:
@@ -267,7 +288,10 @@ def main() -> None:
         runs = os.path.join(args.runs, env, alphas_folder(alphas))
         one = argparse.Namespace(**{**vars(args), "envs": [env], "runs": runs})
         configs = members(one)
-        steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage)
+        steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
+        reused = xt.reused_runs(one, configs, meta_tested(variants, steps))
+        steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage,
+                                             reused)  # fmt: skip
         command = xt.study_command("meta_training.py", one, f" --variants {' '.join(variants)}"
                                    if variants else " --no-meta-test")  # fmt: skip
         for alpha in alphas:  # one table per alpha, each against the same SAC and MB-MPO
@@ -275,7 +299,8 @@ def main() -> None:
                       "alpha": alpha, "placement": configs[-1].ma.placement,
                       "normalize_reward": configs[-1].sac.normalize_reward, "variants": variants,
                       "meta_test_settings": dataclasses.asdict(meta_test.MetaTestConfig()),
-                      "tables": collect(configs, out_dir, steps, alpha, variants)}  # fmt: skip
+                      "tables": collect(configs, out_dir, steps, alpha, variants,
+                                        reused)}  # fmt: skip
             text = markdown(result, alpha, variants)
             name = f"{tag}_{env}{alpha_suffix(alphas, alpha)}"
             xt.write_study(RESULTS, f"meta_training_{name}", result, text)
@@ -285,7 +310,7 @@ def main() -> None:
             print(text, flush=True)
         if not args.no_report:
             folder = alphas_folder(alphas)
-            write_reports(configs, out_dir, steps, tag, f"_{folder}" if folder else "")
+            write_reports(configs, out_dir, steps, tag, f"_{folder}" if folder else "", reused)
 
 
 if __name__ == "__main__":

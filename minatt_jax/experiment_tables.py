@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from minatt_jax import paper_numbers, runner, stats
+from minatt_jax import paper_numbers, run_files, runner, stats
 
 MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values says little)
 
@@ -173,6 +173,12 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
                         metavar="FIELD=VALUE",
                         help="override a configuration field for every member, e.g. "
                              "buffer_size=10000 (repeatable)")  # fmt: skip
+    parser.add_argument("--records", default=None, metavar="FOLDER",
+                        help="keep each member's small result files (config.json, "
+                             "metrics.jsonl, meta_test/) in FOLDER once it reached every "
+                             "stage, and read members kept there instead of training them: "
+                             "a grid run in pieces (--seeds) on machines that do not keep "
+                             "runs/, e.g. experiments/records")  # fmt: skip
     if reuse:
         parser.add_argument("--reuse", action="append", default=[], metavar="FOLDER",
                             help="another study's runs (e.g. runs/meta_training/halfcheetah/"
@@ -225,29 +231,36 @@ def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,
     return out
 
 
-def reused_runs(args: argparse.Namespace, configs: list[Any]) -> dict[int, str]:
-    """Members (index -> run directory) already trained in one of the ``--reuse`` folders: a
-    run whose config.json has the member's settings (its length and chunk length aside) and an
-    evaluation at every stage of this study. A folder that is not one exits 2."""
-    candidates = []
+def reused_runs(args: argparse.Namespace, configs: list[Any],
+                complete: Callable[[str], bool] | None = None) -> dict[int, str]:  # fmt: skip
+    """Members (index -> run directory) already trained in one of the ``--reuse`` folders or
+    kept anywhere under ``--records``: a run whose config.json has the member's settings (its
+    length and chunk length aside), an evaluation at every stage of this study and, where
+    given, ``complete(run_dir)`` (e.g. its meta-tests). A ``--reuse`` folder that is not one
+    exits 2."""
+    folders = []
     for folder in getattr(args, "reuse", []):
         if not os.path.isdir(folder):
             print(f"{os.path.basename(sys.argv[0])}: --reuse {folder}: no such folder",
                   file=sys.stderr)  # fmt: skip
             raise SystemExit(2)
-        for name in sorted(os.listdir(folder)):
-            run_dir = os.path.join(folder, name)
-            if os.path.isfile(os.path.join(run_dir, "config.json")):
-                try:
-                    candidates.append((run_dir, runner.load_config(run_dir)))
-                except runner.RunError as e:  # not reusable, said once
-                    print(f"note: --reuse skips {run_dir}: {e}", file=sys.stderr)
+        folders += [os.path.join(folder, name) for name in sorted(os.listdir(folder))]
+    if getattr(args, "records", None):
+        folders += sorted(d for d, _, files in os.walk(args.records) if "config.json" in files)
+    candidates = []
+    for run_dir in folders:
+        if os.path.isfile(os.path.join(run_dir, "config.json")):
+            try:
+                candidates.append((run_dir, runner.load_config(run_dir)))
+            except runner.RunError as e:  # not reusable, said once
+                print(f"note: --reuse skips {run_dir}: {e}", file=sys.stderr)
     steps = stages(configs[0].total_steps, configs[0].eval_every)
     found = {}
     for i, c in enumerate(configs):
         for d, stored in candidates:
             if (runner.with_stored_schedule(c, stored).to_dict() == stored.to_dict()
-                    and all(record_at(d, s) for s in steps)):  # fmt: skip
+                    and all(record_at(d, s) for s in steps)
+                    and (complete is None or complete(d))):  # fmt: skip
                 found[i] = d
                 break
     return found
@@ -264,20 +277,30 @@ def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: 
                 at_stage: Callable[[int, list[str]], None] | None = None,
                 reused: dict[int, str] | None = None) -> tuple[list[int], str, str]:  # fmt: skip
     """Trains (or resumes) a study's population stage by stage unless ``--collect-only``, but
-    the ``reused`` members; returns (stages, tag, runs folder). A stop or refusal exits with one
-    line."""
-    from minatt_jax.population import train_in_stages
+    the ``reused`` members; with ``--records``, keeps the trained members' results there (and
+    trains in a runs folder named by ``--seeds``, so that the pieces of a grid on one machine
+    are separate populations). Returns (stages, tag, runs folder). A stop or refusal exits
+    with one line."""
+    from minatt_jax.population import member_name, train_in_stages
 
     steps = stages(configs[0].total_steps, configs[0].eval_every)
     tag = study_tag(args)
-    out_dir = os.path.join(args.runs, tag)
+    records = getattr(args, "records", None)
+    out_dir = os.path.join(args.runs, tag + (f"_seeds{args.seeds}" if records else ""))
     to_train = [c for i, c in enumerate(configs) if i not in (reused or {})]
     if reused:
-        print(f"{name}: {len(reused)} members read from --reuse, {len(to_train)} to train",
-              flush=True)  # fmt: skip
+        print(f"{name}: {len(reused)} members read from --reuse/--records, {len(to_train)} to "
+              "train", flush=True)  # fmt: skip
     try:
         if not args.collect_only and to_train:
             train_in_stages(to_train, out_dir, swept, steps, at_stage)
     except runner.RunError as e:
         raise SystemExit(f"{name}: {e}") from None
+    if records:
+        dirs = [os.path.join(out_dir, member_name(c, swept)) for c in to_train]
+        done = [d for d in dirs if all(record_at(d, s) for s in steps)]
+        for d in done:
+            run_files.copy_results(d, os.path.join(records, name, tag, os.path.basename(d)))
+        print(f"{name}: results of {len(done)} members kept in "
+              f"{os.path.join(records, name, tag)}", flush=True)  # fmt: skip
     return steps, tag, out_dir

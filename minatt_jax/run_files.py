@@ -86,6 +86,23 @@ def read_metrics(run_dir: str) -> list[dict[str, Any]]:
     return records
 
 
+RESULT_FILES = ("config.json", "metrics.jsonl")  # and meta_test/*.json
+
+
+def copy_results(run_dir: str, target: str) -> None:
+    """Copies what a run's tables are made of (``config.json``, ``metrics.jsonl`` and
+    ``meta_test/*.json``), each atomically, to ``target``: a record small enough to keep in git
+    where the run itself is not kept. Checkpoints and policy snapshots stay behind, so a record
+    is tabulated, not resumed or analyzed."""
+    tests = os.path.join(run_dir, "meta_test")
+    names = [*RESULT_FILES, *(os.path.join("meta_test", f) for f in
+                             sorted(os.listdir(tests) if os.path.isdir(tests) else [])
+                             if f.endswith(".json"))]  # fmt: skip
+    for name in names:
+        with open(os.path.join(run_dir, name), "rb") as f:
+            write_bytes_atomic(os.path.join(target, name), f.read())
+
+
 def load_config(run_dir: str) -> TrainConfig:
     """The (resolved) configuration a run directory was made with."""
     path = os.path.join(run_dir, "config.json")

@@ -175,3 +175,57 @@ def test_several_alphas_give_one_table_each_against_the_same_baseline(tmp_path, 
     with pytest.raises(SystemExit) as stop:
         meta_training.alpha_list(parser.parse_args(["--alpha", "0", "1"]))
     assert stop.value.code == 2 and "above 0" in capsys.readouterr().err
+
+
+def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, capsys):
+    """``--records``: a piece's finished members (seeds 0-1) are kept as small files, without
+    checkpoints; a call for seeds 0-2 on a machine without those runs reads them (its own runs
+    folder named by the seeds), leaves only seed 2 to train, tabulates the kept values, skips
+    the analyze report, and does not read a kept member that lacks the meta-tests it needs."""
+    records = tmp_path / "records"
+
+    def study(seeds: str, machine: str):
+        parser = meta_training.argparse.ArgumentParser()
+        meta_training.xt.add_study_arguments(parser, envs=["hopper"], runs=str(tmp_path / machine),
+                                             several_alphas=True)  # fmt: skip
+        args = parser.parse_args(["--scale", "smoke", "--steps", "10000", "--seeds", seeds,
+                                  "--records", str(records), "--collect-only",
+                                  "--set", "eval_every=1000"])  # fmt: skip
+        return args, meta_training.members(args)
+
+    args, configs = study("0-1", "machine1")
+    steps = meta_training.xt.stages(configs[0].total_steps, configs[0].eval_every)
+    assert steps == [10_000]
+    for c in configs:  # the return is 100 x the seed (+1000 for MA); a checkpoint beside it
+        name = meta_training.population.member_name(c, meta_training.SWEPT)
+        d = tmp_path / "machine1" / "smoke_10k_seeds0-1" / name
+        metrics = {"return": 100.0 * c.seed + 1000.0 * c.ma.alpha, "feedback_norm": 1.0,
+                   "feedforward_norm": 1.0, "energy": 1.0}  # fmt: skip
+        write_run(str(d), 10_000, metrics, {"crippled": 5.0})
+        (d / "config.json").write_text(json.dumps(c.to_dict()))
+        os.makedirs(d / "checkpoints" / "10000")
+    meta_training.xt.train_study("meta_training", args, configs, meta_training.SWEPT)
+    kept = records / "meta_training" / "smoke_10k"
+    names = sorted(os.listdir(kept))
+    assert len(names) == 6 and "results of 6 members kept" in capsys.readouterr().out
+    assert sorted(os.listdir(kept / names[0])) == ["config.json", "meta_test", "metrics.jsonl"]
+    os.remove(kept / "mbmpo_envhopper_alpha1_seed1" / "meta_test" / "crippled_10000.json")
+
+    args, configs = study("0-2", "machine2")
+    tested = meta_training.meta_tested(["crippled"], steps)
+    reused = meta_training.xt.reused_runs(args, configs, tested)
+    expected = {i: str(kept / meta_training.population.member_name(c, meta_training.SWEPT))
+                for i, c in enumerate(configs)
+                if c.seed < 2 and not (c.ma.alpha and c.seed == 1)}  # fmt: skip
+    assert reused == expected and len(reused) == 5
+    _, tag, out_dir = meta_training.xt.train_study("meta_training", args, configs,
+                                                   meta_training.SWEPT, reused=reused)  # fmt: skip
+    assert out_dir == str(tmp_path / "machine2" / "smoke_10k_seeds0-2")
+    assert "5 members read from --reuse/--records, 4 to train" in capsys.readouterr().out
+    tables = meta_training.collect(configs, out_dir, steps, 1.0, ["crippled"], reused)
+    rows = tables["hopper"]["meta_training"]["10000"]
+    assert rows["sac"]["seeds"] == 2 and rows["sac"]["return"]["mean"] == 50.0
+    assert rows["ma"]["seeds"] == 1 and rows["ma"]["return"]["mean"] == 1000.0
+    assert tables["hopper"]["meta_testing"]["10000"]["mbmpo"]["seeds"] == 2
+    meta_training.write_reports(configs, out_dir, steps, tag, "", reused)
+    assert "no analyze report for hopper: 9 members" in capsys.readouterr().out
