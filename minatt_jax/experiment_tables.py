@@ -213,7 +213,9 @@ def study_command(script: str, args: argparse.Namespace, extra: str = "") -> str
             + (f" --placement {args.placement}" if args.placement else "")
             + (" --normalize-reward" if args.normalize_reward else "")
             + "".join(f" --set {o}" for o in args.overrides)
-            + "".join(f" --reuse {f}" for f in getattr(args, "reuse", [])) + extra)  # fmt: skip
+            + "".join(f" --reuse {f}" for f in getattr(args, "reuse", []))
+            + (f" --records {args.records}" if getattr(args, "records", None) else "")
+            + extra)  # fmt: skip
 
 
 def dirs_by_arm(configs: list[Any], out_dir: str, swept: list[str], env: str,

@@ -221,6 +221,9 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     _, tag, out_dir = meta_training.xt.train_study("meta_training", args, configs,
                                                    meta_training.SWEPT, reused=reused)  # fmt: skip
     assert out_dir == str(tmp_path / "machine2" / "smoke_10k_seeds0-2")
+    assert f"--seeds 0-2 --alpha 1 --set eval_every=1000 --records {records}" in (
+        meta_training.xt.study_command("meta_training.py", args)
+    )
     assert "5 members read from --reuse/--records, 4 to train" in capsys.readouterr().out
     tables = meta_training.collect(configs, out_dir, steps, 1.0, ["crippled"], reused)
     rows = tables["hopper"]["meta_training"]["10000"]
