@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import itertools
+import json
 import os
 import time
 from collections.abc import Callable
@@ -345,6 +346,14 @@ def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
     if resume:
         if index is not None and not os.path.exists(index_path):
             raise RunError(f"{out_dir} holds no population to resume (no population.json)")
+        if os.path.exists(index_path):
+            with open(index_path) as f:
+                started = {m["run_dir"] for m in json.load(f)["members"]}
+            if new := [os.path.basename(d) for d in dirs if os.path.basename(d) not in started]:
+                raise RunError(f"{out_dir} holds a population started without "
+                               f"{', '.join(new[:3])}{' ...' if len(new) > 3 else ''}: a resume "
+                               "goes on with the members it started with; train the others "
+                               "under another folder")  # fmt: skip
         stored = [load_config(d) for d in dirs]
         for member, old, run_dir in zip(members, stored, dirs, strict=True):
             if runner.with_stored_schedule(member, old).to_dict() != old.to_dict():

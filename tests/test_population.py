@@ -278,6 +278,10 @@ def test_a_locked_population_is_refused_before_anything_is_written(monkeypatch, 
     population.train_population(longer, out, [], resume=True, log=lambda _: None)
     with open(config_path) as f:
         assert json.load(f)["total_steps"] == 600  # unlocked, the length changes as before
+    more = population.expand(ONE_CHUNK, [0, 1, 2], [])  # another member: said, nothing written
+    with pytest.raises(runner.RunError, match="started without sac_seed2: a resume goes on"):
+        population.train_population(more, out, [], resume=True, log=lambda _: None)
+    assert not os.path.exists(os.path.join(out, population.member_name(more[2], [])))
 
 
 def test_a_trained_population_resumes_without_the_memory_its_training_needs(monkeypatch, tmp_path):
