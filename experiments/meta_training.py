@@ -290,8 +290,8 @@ def main() -> None:
         configs = members(one)
         steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
         reused = xt.reused_runs(one, configs, meta_tested(variants, steps))
-        steps, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage,
-                                             reused)  # fmt: skip
+        _, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage,
+                                         reused)  # fmt: skip
         command = xt.study_command("meta_training.py", one, f" --variants {' '.join(variants)}"
                                    if variants else " --no-meta-test")  # fmt: skip
         for alpha in alphas:  # one table per alpha, each against the same SAC and MB-MPO
