@@ -3,7 +3,7 @@
     python experiments/reading_study.py [--scale smoke|cpu|paper] [--envs hopper halfcheetah]
         [--algo mbmpo] [--seeds 0-4] [--alphas 0.01 0.05 1 5]
         [--placements actor_loss reward entropy] [--normalize off on] [--steps N]
-        [--runs runs/reading_study]
+        [--runs runs/reading_study] [--records experiments/records]
 
 The paper puts the MA penalty in three places (added to the reward, to the policy loss, inside
 the SAC objective beside the entropy) and says rewards were normalized. Arms: every placement x
@@ -22,11 +22,16 @@ above); with fewer than 5 seeds in an arm or its baseline there is no verdict. W
 Arms that the runs folder does not hold (``--normalize on`` alone, or runs trained on another
 machine and not copied here) keep their rows from the results file already written, marked
 "stored": the runs are git-ignored, the results are not, so a study can be finished in parts.
+Finer pieces (some seeds of an arm here, the others elsewhere) go through ``--records FOLDER``:
+each member that finished keeps its config.json and metrics.jsonl in
+``FOLDER/reading_study/<tag>/<member>``, members found there are read, not trained, and a
+piece trains in a runs folder of its own (named by its members' digest).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 from typing import Any
@@ -80,11 +85,12 @@ def arm_key(row: dict[str, Any]) -> tuple:
     return tuple(row[f] for f in ARM_FIELDS)
 
 
-def analyse(configs: list[Any], out_dir: str) -> list[dict[str, Any]]:
-    """One row per arm: statistics over seeds and the difference from the baseline."""
+def analyse(configs: list[Any], dirs: list[str]) -> list[dict[str, Any]]:
+    """One row per arm (members ``configs`` in run directories ``dirs``): statistics over
+    seeds and the difference from the baseline."""
     arms: dict[tuple, list[dict[str, float]]] = {}
-    for c in configs:
-        values = final_values(os.path.join(out_dir, population.member_name(c, SWEPT)))
+    for c, run_dir in zip(configs, dirs, strict=True):
+        values = final_values(run_dir)
         if values is not None and values["step"] >= c.total_steps:  # finished members only
             arms.setdefault(arm_key(arm_of(c)), []).append(values)
     rows = []
@@ -144,6 +150,34 @@ def markdown(rows: list[dict[str, Any]], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[str]:
+    """Trains (or resumes) the members, unless ``--analyse-only``, and returns each one's run
+    directory. With ``--records``: members kept there are read, not trained; the others train
+    in a runs folder named by their digest (a piece of the study is a population of its own)
+    and, once finished, are kept there too."""
+    reused = xt.reused_runs(args, configs) if args.records else {}
+    to_train = [c for i, c in enumerate(configs) if i not in reused]
+    names = [population.member_name(c, SWEPT) for c in to_train]
+    out_dir = os.path.join(args.runs, tag)
+    if args.records:  # a piece of the study: a population of its own
+        out_dir += "_" + hashlib.sha1(" ".join(names).encode()).hexdigest()[:8]
+        print(f"reading_study: {len(reused)} members read from {args.records}, "
+              f"{len(to_train)} to train in {out_dir}", flush=True)  # fmt: skip
+    if not args.analyse_only and to_train:
+        resume = os.path.exists(os.path.join(out_dir, "population.json"))
+        try:
+            population.train_population(to_train, out_dir, SWEPT, resume=resume)
+        except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
+            raise SystemExit(f"reading_study: {e}") from None
+    if args.records:
+        target = os.path.join(args.records, "reading_study", tag)
+        xt.keep_records([os.path.join(out_dir, n) for n in names],
+                        xt.stages(configs[0].total_steps, configs[0].eval_every), target,
+                        "reading_study")  # fmt: skip
+    return [reused.get(i) or os.path.join(out_dir, population.member_name(c, SWEPT))
+            for i, c in enumerate(configs)]  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", default="cpu", choices=sorted(PRESETS))
@@ -159,24 +193,22 @@ def main() -> None:
     parser.add_argument("--runs", default="runs/reading_study")
     parser.add_argument("--analyse-only", action="store_true",
                         help="tabulate what the runs hold now, without training")  # fmt: skip
+    parser.add_argument("--records", default=None, metavar="FOLDER",
+                        help="keep finished members' result files in FOLDER and read "
+                             "members kept there instead of training them: the study in "
+                             "pieces on machines that do not keep runs/ "
+                             "(experiments/records)")  # fmt: skip
     args = parser.parse_args()
     configs = members(args)
     tag = args.scale if args.steps is None else f"{args.scale}_{args.algo}_{args.steps // 1000}k"
-    out_dir = os.path.join(args.runs, tag)
-    if not args.analyse_only:
-        resume = os.path.exists(os.path.join(out_dir, "population.json"))
-        try:
-            population.train_population(configs, out_dir, SWEPT, resume=resume)
-        except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
-            raise SystemExit(f"reading_study: {e}") from None
-    rows = with_stored(
-        analyse(configs, out_dir), os.path.join(RESULTS, f"reading_study_{tag}.json")
-    )
+    dirs = member_dirs(args, configs, tag)
+    rows = with_stored(analyse(configs, dirs), os.path.join(RESULTS, f"reading_study_{tag}.json"))
     command = ("python experiments/reading_study.py --scale "
                f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "
                f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
                f"--placements {' '.join(args.placements)} --normalize {' '.join(args.normalize)}"
-               + (f" --steps {args.steps}" if args.steps else ""))  # fmt: skip
+               + (f" --steps {args.steps}" if args.steps else "")
+               + (f" --records {args.records}" if args.records else ""))  # fmt: skip
     result = {**xt.provenance(command), "arms": rows}
     header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "
               "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "

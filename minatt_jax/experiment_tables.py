@@ -255,7 +255,7 @@ def reused_runs(args: argparse.Namespace, configs: list[Any],
             try:
                 candidates.append((run_dir, runner.load_config(run_dir)))
             except runner.RunError as e:  # not reusable, said once
-                print(f"note: --reuse skips {run_dir}: {e}", file=sys.stderr)
+                print(f"note: not reading {run_dir}: {e}", file=sys.stderr)
     steps = stages(configs[0].total_steps, configs[0].eval_every)
     found = {}
     for i, c in enumerate(configs):
@@ -299,10 +299,15 @@ def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: 
     except runner.RunError as e:
         raise SystemExit(f"{name}: {e}") from None
     if records:
-        dirs = [os.path.join(out_dir, member_name(c, swept)) for c in to_train]
-        done = [d for d in dirs if all(record_at(d, s) for s in steps)]
-        for d in done:
-            run_files.copy_results(d, os.path.join(records, name, tag, os.path.basename(d)))
-        print(f"{name}: results of {len(done)} members kept in "
-              f"{os.path.join(records, name, tag)}", flush=True)  # fmt: skip
+        keep_records([os.path.join(out_dir, member_name(c, swept)) for c in to_train], steps,
+                     os.path.join(records, name, tag), name)  # fmt: skip
     return steps, tag, out_dir
+
+
+def keep_records(dirs: list[str], steps: list[int], target: str, name: str) -> None:
+    """Copies the result files of the runs in ``dirs`` that reached every stage in ``steps``
+    to ``target/<run name>`` (``run_files.copy_results``) and says how many."""
+    done = [d for d in dirs if all(record_at(d, s) for s in steps)]
+    for d in done:
+        run_files.copy_results(d, os.path.join(target, os.path.basename(d)))
+    print(f"{name}: results of {len(done)} members kept in {target}", flush=True)

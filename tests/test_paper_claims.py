@@ -232,3 +232,53 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     assert tables["hopper"]["meta_testing"]["10000"]["mbmpo"]["seeds"] == 2
     meta_training.write_reports(configs, out_dir, steps, tag, "", reused)
     assert "no analyze report for hopper: 9 members" in capsys.readouterr().out
+
+
+def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeypatch, capsys):
+    """The reading study's ``--records``: a first piece (seeds 0-1) keeps its finished
+    members; a second call for seeds 0-2 on a machine without those runs trains seed 2 alone,
+    in a runs folder of its own, and its arms hold all three seeds' values."""
+    reading_study = importlib.import_module("reading_study")
+    records = tmp_path / "records"
+    trained: list[list[str]] = []
+
+    def fake_train(members, out_dir, swept, resume):  # return: 10 x seed + 100 x alpha
+        trained.append([reading_study.population.member_name(c, swept) for c in members])
+        for c in members:
+            d = os.path.join(out_dir, reading_study.population.member_name(c, swept))
+            metrics = {"return": 10.0 * c.seed + 100.0 * c.ma.alpha, "feedback_norm": 1.0,
+                       "feedforward_norm": 1.0, "energy": 1.0}  # fmt: skip
+            write_run(d, c.total_steps, metrics, {})
+            with open(os.path.join(d, "config.json"), "w") as f:
+                json.dump(c.to_dict(), f)
+            os.makedirs(os.path.join(d, "checkpoints"))
+
+    monkeypatch.setattr(reading_study.population, "train_population", fake_train)
+
+    def piece(seeds: str, machine: str):
+        args = reading_study.argparse.Namespace(
+            scale="smoke", envs=["hopper"], algo="mbmpo", seeds=seeds, alphas=[1.0],
+            placements=["entropy"], normalize=["off"], steps=None, analyse_only=False,
+            runs=str(tmp_path / machine), records=str(records))  # fmt: skip
+        configs = reading_study.members(args)
+        return configs, reading_study.member_dirs(args, configs, "smoke")
+
+    configs, dirs = piece("0-1", "machine1")
+    assert len(trained) == 1 and len(trained[0]) == 4 and len(configs) == 4
+    kept = records / "reading_study" / "smoke"
+    assert sorted(os.listdir(kept)) == sorted(trained[0])
+    assert sorted(os.listdir(kept / trained[0][0])) == ["config.json", "metrics.jsonl"]
+    first_dir = os.path.dirname(dirs[0])
+
+    configs, dirs = piece("0-2", "machine2")
+    assert len(trained) == 2 and all("seed2" in name for name in trained[1])
+    assert len(trained[1]) == 2
+    assert sum(d.startswith(str(kept)) for d in dirs) == 4
+    fresh = {os.path.dirname(d) for d in dirs if not d.startswith(str(kept))}
+    assert len(fresh) == 1 and fresh != {first_dir}
+    assert "4 members read from" in capsys.readouterr().out
+    rows = reading_study.analyse(configs, dirs)
+    ma = next(r for r in rows if r["alpha"] == 1.0)
+    assert ma["seeds"] == 3 and sorted(ma["return"]["values"]) == [100.0, 110.0, 120.0]
+    base = next(r for r in rows if r["alpha"] == 0.0)
+    assert base["seeds"] == 3 and ma["paper_direction"] is None  # under 5 seeds: no verdict

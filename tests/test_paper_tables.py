@@ -112,7 +112,7 @@ def test_reuse_reads_only_members_with_the_same_settings_at_every_stage(tmp_path
     (other / "e" / "config.json").write_text("{")  # fmt: skip
     reused = xt.reused_runs(args, configs)
     assert reused == {0: str(other / "a"), 3: str(other / "d")}
-    assert "--reuse skips" in capsys.readouterr().err
+    assert "note: not reading" in capsys.readouterr().err
     dirs = xt.dirs_by_arm(configs, "runs/x/smoke", ablation.SWEPT, "halfcheetah",
                           ablation.arm_of, reused)  # fmt: skip
     assert dirs["full"] == [str(other / "a")] and dirs["none"] == [str(other / "d")]
