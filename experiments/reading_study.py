@@ -156,8 +156,9 @@ def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[
     in a runs folder named by their digest (a piece of the study is a population of its own)
     and, once finished, are kept there too."""
     reused = xt.reused_runs(args, configs) if args.records else {}
+    every_name = [population.member_name(c, SWEPT) for c in configs]
     to_train = [c for i, c in enumerate(configs) if i not in reused]
-    names = [population.member_name(c, SWEPT) for c in to_train]
+    names = [n for i, n in enumerate(every_name) if i not in reused]
     out_dir = os.path.join(args.runs, tag)
     if args.records:  # a piece of the study: a population of its own
         out_dir += "_" + hashlib.sha1(" ".join(names).encode()).hexdigest()[:8]
@@ -174,8 +175,7 @@ def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[
         xt.keep_records([os.path.join(out_dir, n) for n in names],
                         xt.stages(configs[0].total_steps, configs[0].eval_every), target,
                         "reading_study")  # fmt: skip
-    return [reused.get(i) or os.path.join(out_dir, population.member_name(c, SWEPT))
-            for i, c in enumerate(configs)]  # fmt: skip
+    return [reused.get(i) or os.path.join(out_dir, n) for i, n in enumerate(every_name)]
 
 
 def main() -> None:
