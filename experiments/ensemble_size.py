@@ -120,7 +120,7 @@ def main() -> None:
         f" --trajectories {' '.join(map(str, args.trajectories))}",
     )
     result = {"tag": tag, **xt.provenance(command), "alpha": args.alpha, "stages": steps,
-              "tables": tables, "curves": curves}  # fmt: skip
+              "baseline": baseline, "tables": tables, "curves": curves}  # fmt: skip
     name = f"ensemble_size_{tag}"
     text = markdown(result)
     xt.write_study(RESULTS, name, result, text)

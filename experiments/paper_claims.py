@@ -24,6 +24,7 @@ import datetime
 import glob
 import json
 import os
+from collections.abc import Callable
 from typing import Any
 
 from minatt_jax import experiment_tables as xt
@@ -305,23 +306,43 @@ def cost_claims() -> list[dict[str, Any]]:
     return out
 
 
+def latest_table(pattern: str, env: str, usable: Callable[[dict, dict], list[str]]
+                 ) -> tuple[dict, int, dict, list[str]] | None:  # fmt: skip
+    """Among the result files matching ``pattern``, ``env``'s table at the latest stage (then
+    the most seeds over the arms used): (result, stage, rows, arms), where ``usable(result,
+    rows)`` names the arms a claim compares there (none: the table is not usable)."""
+    found = []
+    for path in glob.glob(os.path.join(RESULTS, pattern)):
+        result = _read(path)
+        for step, rows in result["tables"].get(env, {}).items():
+            arms = usable(result, rows)
+            if arms:
+                n = min(rows[a]["seeds"] for a in arms)
+                found.append(((int(step), n), result, int(step), rows, arms))
+    if not found:
+        return None
+    return max(found, key=lambda f: f[0])[1:]
+
+
+def _seeded(rows: dict[str, Any], arm: str) -> bool:
+    return bool(rows.get(arm, {}).get("seeds"))
+
+
 def ablation_claim() -> dict[str, Any]:
     """Table 1's ablation: full MA's return against Jacobian-only and temporal-only, from the
     ``ablation_*.json`` with the latest HalfCheetah stage (then the most seeds); each arm's
     verdict as a table cell's (``verdict``: the interval of arm - full, at 200K, >= 5 seeds)."""
     name = "Full MA beats Jacobian-only and temporal-only in reward (Table 1)"
     paper = "9721 vs 6484 / 6475"
-    found = []
-    for path in glob.glob(os.path.join(RESULTS, "ablation_*.json")):
-        result = _read(path)
-        for step, rows in result["tables"].get("halfcheetah", {}).items():
-            arms = [a for a in ("jacobian", "temporal") if rows.get(a, {}).get("seeds")]
-            if rows.get("full", {}).get("seeds") and arms:
-                n = min(rows[a]["seeds"] for a in ["full", *arms])
-                found.append(((int(step), n), result["tag"], int(step), rows, arms))
-    if not found:
+
+    def usable(result: dict, rows: dict) -> list[str]:
+        arms = [a for a in ("jacobian", "temporal") if _seeded(rows, a)]
+        return ["full", *arms] if arms and _seeded(rows, "full") else []
+
+    table = latest_table("ablation_*.json", "halfcheetah", usable)
+    if table is None:
         return missing_experiment(name, paper, "ablation_*.json", "python experiments/ablation.py")
-    _, tag, step, rows, arms = max(found, key=lambda f: f[0])
+    result, step, rows, (_, *arms) = table
     full = rows["full"]["return"]
     parts, verdicts, reasons = [f"full {full['mean']:.3g} (n={full['n']})"], [], []
     for arm in arms:
@@ -334,8 +355,56 @@ def ablation_claim() -> dict[str, Any]:
         reasons.append(f"{arm}: {reason}")
     v = combined(verdicts)
     return {"claim": name, "paper": paper,
-            "ours": f"halfcheetah {xt.stage_label(step)} ({tag}): " + ", ".join(parts),
+            "ours": f"halfcheetah {xt.stage_label(step)} ({result['tag']}): " + ", ".join(parts),
             "verdict": v, "reason": "; ".join(reasons)}  # fmt: skip
+
+
+def ensemble_pairs(result: dict[str, Any], rows: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """Fig. 4's claims as (arm, against, claimed direction of arm - against) among ``rows``'
+    arms ("M=.. N=.."): the largest M above the smallest at the preset's N; N=128 above N=16
+    and N=256 below N=128 at the preset's M (``result['baseline']``)."""
+    m0, n0 = (int(v.split("=")[1]) for v in result["baseline"].split())
+    arms = {tuple(int(v.split("=")[1]) for v in a.split()): a for a in rows if _seeded(rows, a)}
+    sizes = sorted(m for m, n in arms if n == n0)
+    pairs = []
+    if len(sizes) >= 2:
+        pairs.append((arms[sizes[-1], n0], arms[sizes[0], n0], "higher"))
+    for n, against, claimed in ((128, 16, "higher"), (256, 128, "lower")):
+        if (m0, n) in arms and (m0, against) in arms:
+            pairs.append((arms[m0, n], arms[m0, against], claimed))
+    return pairs
+
+
+def ensemble_claim() -> dict[str, Any]:
+    """Fig. 4: the return against the ensemble size M and the imagined trajectories N, from the
+    ``ensemble_size_*.json`` with the latest HalfCheetah stage (then the most seeds); each pair
+    judged as a table cell (the interval of the difference, at 200K, >= 5 seeds)."""
+    name = ("The reward grows with the ensemble size M up to 20; imagined trajectories N help "
+            "up to 128, less at 256 (Fig. 4)")  # fmt: skip
+    paper = "curves only"
+
+    def usable(result: dict, rows: dict) -> list[str]:
+        return sorted({a for pair in ensemble_pairs(result, rows) for a in pair[:2]})
+
+    table = latest_table("ensemble_size_*.json", "halfcheetah", usable)
+    if table is None:
+        return missing_experiment(name, paper, "ensemble_size_*.json",
+                                  "python experiments/ensemble_size.py")  # fmt: skip
+    result, step, rows, _ = table
+    parts, verdicts, reasons = [], [], []
+    for arm, against, claimed in ensemble_pairs(result, rows):
+        ours, other = dict(rows[arm]["return"]), rows[against]["return"]
+        # the row's own interval is against the preset's arm: this pair's replaces it
+        lo, hi = ours["diff_ci"] = stats.bootstrap_diff_ci(ours["values"], other["values"])
+        v, reason = verdict(claimed, {"stage": step, "ma": ours, "mbmpo": other},
+                            max(paper_numbers.STAGES))  # fmt: skip
+        parts.append(f"{arm} {ours['mean']:.3g} vs {against} {other['mean']:.3g} (n="
+                     f"{min(ours['n'], other['n'])}; difference [{lo:.3g}, {hi:.3g}])")  # fmt: skip
+        verdicts.append(v)
+        reasons.append(f"{arm} {claimed} than {against}: {reason}")
+    return {"claim": name, "paper": paper,
+            "ours": f"halfcheetah {xt.stage_label(step)} ({result['tag']}): " + "; ".join(parts),
+            "verdict": combined(verdicts), "reason": "; ".join(reasons)}  # fmt: skip
 
 
 def missing_experiment(name: str, paper: str, pattern: str, command: str) -> dict[str, Any]:
@@ -415,9 +484,7 @@ def main() -> None:
                   "200K but Walker2D (129 -> 210)", pick("feedback_norm", "meta_training")),
         adaptation_claim(srcs),
         ablation_claim(),
-        missing_experiment("The reward grows with the ensemble size M up to 20; imagined "
-                           "trajectories N help up to 128, less at 256 (Fig. 4)", "curves only",
-                           "ensemble_size_*.json", "python experiments/ensemble_size.py"),
+        ensemble_claim(),
         *cost_claims(),
     ]  # fmt: skip
     result = {"date": datetime.date.today().isoformat(),

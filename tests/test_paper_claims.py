@@ -144,6 +144,37 @@ def test_the_ablation_claim_reads_the_latest_stage_and_needs_five_seeds(tmp_path
     assert "(paper)" in claim["ours"] and "jacobian 6" in claim["ours"]
 
 
+def test_the_ensemble_claim_compares_the_arms_fig_4_names(tmp_path, monkeypatch):
+    """Fig. 4: M=20 above M=1, N=128 above N=16 and N=256 below N=128, each by the interval of
+    the difference of those two arms (not the rows' own intervals against the preset's arm):
+    all three at 200K with 5 seeds reproduce; N=256 above N=128 does not; 10K is inconclusive."""
+    xt = paper_claims.xt
+    monkeypatch.setattr(paper_claims, "RESULTS", str(tmp_path))
+    assert paper_claims.ensemble_claim()["verdict"] == "not tested"
+
+    def write(tag: str, step: int, n256: float) -> None:
+        rng = np.random.default_rng(0)
+        means = {"M=1 N=100": 100.0, "M=20 N=100": 400.0, "M=7 N=16": 200.0,
+                 "M=7 N=128": 500.0, "M=7 N=256": n256, "M=7 N=100": 1000.0}  # fmt: skip
+        values = {a: list(m + 10 * rng.standard_normal(5)) for a, m in means.items()}
+        rows = {a: {"return": xt.arm_summary(v, values["M=7 N=100"]), "seeds": 5}
+                for a, v in values.items()}  # fmt: skip
+        with open(tmp_path / f"ensemble_size_{tag}.json", "w") as f:
+            json.dump({"tag": tag, "baseline": "M=7 N=100",
+                       "tables": {"halfcheetah": {str(step): rows}}}, f)  # fmt: skip
+
+    write("early", 10_000, 300.0)
+    claim = paper_claims.ensemble_claim()
+    assert claim["verdict"] == "inconclusive at this scale" and "10K" in claim["reason"]
+    assert "M=20 N=100 40" in claim["ours"] and "vs M=1 N=100 10" in claim["ours"]
+    write("paper", 200_000, 300.0)
+    claim = paper_claims.ensemble_claim()
+    assert claim["verdict"] == "reproduced", claim
+    assert claim["reason"].count("interval") == 3  # each pair, none against M=7 N=100
+    write("paper", 200_000, 900.0)
+    assert paper_claims.ensemble_claim()["verdict"] == "not reproduced"
+
+
 def test_several_alphas_give_one_table_each_against_the_same_baseline(tmp_path, capsys):
     """``--alpha 0.01 0.05``: SAC and MB-MPO once, an MA arm per alpha; each alpha's table reads
     only its own MA members, and its files carry the alpha (alpha 1 alone keeps the old names);
