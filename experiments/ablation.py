@@ -88,6 +88,8 @@ def main() -> None:
     configs = members(args)
     reused = xt.reused_runs(args, configs)
     steps, tag, out_dir = xt.train_study("ablation", args, configs, SWEPT, reused=reused)
+    if args.no_tables:
+        return
     tables = {}
     for env in args.envs:
         dirs = xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused)

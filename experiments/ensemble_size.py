@@ -105,6 +105,8 @@ def main() -> None:
     configs = members(args, base)
     reused = xt.reused_runs(args, configs)
     steps, tag, out_dir = xt.train_study("ensemble_size", args, configs, SWEPT, reused=reused)
+    if args.no_tables:
+        return
     baseline = f"M={base.model.ensemble_size} N={base.mb.rollout_batch}"
     tables: dict[str, Any] = {}
     curves: dict[str, Any] = {}

@@ -292,6 +292,8 @@ def main() -> None:
         reused = xt.reused_runs(one, configs, meta_tested(variants, steps))
         _, tag, out_dir = xt.train_study("meta_training", one, configs, SWEPT, at_stage,
                                          reused)  # fmt: skip
+        if args.no_tables:
+            continue
         command = xt.study_command("meta_training.py", one, f" --variants {' '.join(variants)}"
                                    if variants else " --no-meta-test")  # fmt: skip
         for alpha in alphas:  # one table per alpha, each against the same SAC and MB-MPO

@@ -31,7 +31,6 @@ piece trains in a runs folder of its own (named by its members' digest).
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 from typing import Any
@@ -161,7 +160,7 @@ def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[
     names = [n for i, n in enumerate(every_name) if i not in reused]
     out_dir = os.path.join(args.runs, tag)
     if args.records:  # a piece of the study: a population of its own
-        out_dir += "_" + hashlib.sha1(" ".join(names).encode()).hexdigest()[:8]
+        out_dir = xt.piece_folder(out_dir, names)
         print(f"reading_study: {len(reused)} members read from {args.records}, "
               f"{len(to_train)} to train in {out_dir}", flush=True)  # fmt: skip
     if not args.analyse_only and to_train:
@@ -198,10 +197,17 @@ def main() -> None:
                              "members kept there instead of training them: the study in "
                              "pieces on machines that do not keep runs/ "
                              "(experiments/records)")  # fmt: skip
+    parser.add_argument(
+        "--no-tables",
+        action="store_true",
+        help="train (and keep the records) only: for a piece of the study",
+    )
     args = parser.parse_args()
     configs = members(args)
     tag = args.scale if args.steps is None else f"{args.scale}_{args.algo}_{args.steps // 1000}k"
     dirs = member_dirs(args, configs, tag)
+    if args.no_tables:
+        return
     rows = with_stored(analyse(configs, dirs), os.path.join(RESULTS, f"reading_study_{tag}.json"))
     command = ("python experiments/reading_study.py --scale "
                f"{args.scale} --envs {' '.join(args.envs)} --algo {args.algo} --seeds "

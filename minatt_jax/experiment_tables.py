@@ -10,6 +10,7 @@ interval (``minatt_jax.stats``).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -179,6 +180,10 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
                              "stage, and read members kept there instead of training them: "
                              "a grid run in pieces (--seeds) on machines that do not keep "
                              "runs/, e.g. experiments/records")  # fmt: skip
+    parser.add_argument("--no-tables", action="store_true",
+                        help="train (and keep the records) only: for a piece of a grid, "
+                             "whose tables would hold its own members alone and overwrite "
+                             "the whole grid's")  # fmt: skip
     if reuse:
         parser.add_argument("--reuse", action="append", default=[], metavar="FOLDER",
                             help="another study's runs (e.g. runs/meta_training/halfcheetah/"
@@ -280,16 +285,17 @@ def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: 
                 reused: dict[int, str] | None = None) -> tuple[list[int], str, str]:  # fmt: skip
     """Trains (or resumes) a study's population stage by stage unless ``--collect-only``, but
     the ``reused`` members; with ``--records``, keeps the trained members' results there (and
-    trains in a runs folder named by ``--seeds``, so that the pieces of a grid on one machine
-    are separate populations). Returns (stages, tag, runs folder). A stop or refusal exits
-    with one line."""
+    trains in a ``piece_folder``, so that the pieces of a grid on one machine are separate
+    populations). Returns (stages, tag, runs folder). A stop or refusal exits with one line."""
     from minatt_jax.population import member_name, train_in_stages
 
     steps = stages(configs[0].total_steps, configs[0].eval_every)
     tag = study_tag(args)
     records = getattr(args, "records", None)
-    out_dir = os.path.join(args.runs, tag + (f"_seeds{args.seeds}" if records else ""))
     to_train = [c for i, c in enumerate(configs) if i not in (reused or {})]
+    out_dir = os.path.join(args.runs, tag)
+    if records:
+        out_dir = piece_folder(out_dir, [member_name(c, swept) for c in to_train])
     if reused:
         print(f"{name}: {len(reused)} members read from --reuse/--records, {len(to_train)} to "
               "train", flush=True)  # fmt: skip
@@ -302,6 +308,13 @@ def train_study(name: str, args: argparse.Namespace, configs: list[Any], swept: 
         keep_records([os.path.join(out_dir, member_name(c, swept)) for c in to_train], steps,
                      os.path.join(records, name, tag), name)  # fmt: skip
     return steps, tag, out_dir
+
+
+def piece_folder(out_dir: str, names: list[str]) -> str:
+    """``<out_dir>_<digest of the member names>``: the runs folder of one piece of a grid, so
+    that pieces splitting seeds, arms, placements or normalization on one machine do not
+    collide, and the same piece run again resumes."""
+    return f"{out_dir}_{hashlib.sha1(' '.join(names).encode()).hexdigest()[:8]}"
 
 
 def keep_records(dirs: list[str], steps: list[int], target: str, name: str) -> None:

@@ -227,9 +227,14 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     args, configs = study("0-1", "machine1")
     steps = meta_training.xt.stages(configs[0].total_steps, configs[0].eval_every)
     assert steps == [10_000]
+
+    def name(c) -> str:
+        return meta_training.population.member_name(c, meta_training.SWEPT)
+
+    piece = meta_training.xt.piece_folder(str(tmp_path / "machine1" / "smoke_10k"),
+                                          [name(c) for c in configs])  # fmt: skip
     for c in configs:  # the return is 100 x the seed (+1000 for MA); a checkpoint beside it
-        name = meta_training.population.member_name(c, meta_training.SWEPT)
-        d = tmp_path / "machine1" / "smoke_10k_seeds0-1" / name
+        d = tmp_path / piece / name(c)
         metrics = {"return": 100.0 * c.seed + 1000.0 * c.ma.alpha, "feedback_norm": 1.0,
                    "feedforward_norm": 1.0, "energy": 1.0}  # fmt: skip
         write_run(str(d), 10_000, metrics, {"crippled": 5.0})
@@ -245,13 +250,16 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     args, configs = study("0-2", "machine2")
     tested = meta_training.meta_tested(["crippled"], steps)
     reused = meta_training.xt.reused_runs(args, configs, tested)
-    expected = {i: str(kept / meta_training.population.member_name(c, meta_training.SWEPT))
-                for i, c in enumerate(configs)
+    expected = {i: str(kept / name(c)) for i, c in enumerate(configs)
                 if c.seed < 2 and not (c.ma.alpha and c.seed == 1)}  # fmt: skip
     assert reused == expected and len(reused) == 5
     _, tag, out_dir = meta_training.xt.train_study("meta_training", args, configs,
                                                    meta_training.SWEPT, reused=reused)  # fmt: skip
-    assert out_dir == str(tmp_path / "machine2" / "smoke_10k_seeds0-2")
+    to_train = [name(c) for i, c in enumerate(configs) if i not in reused]
+    assert out_dir == meta_training.xt.piece_folder(str(tmp_path / "machine2" / "smoke_10k"),
+                                                    to_train)  # fmt: skip
+    assert out_dir != meta_training.xt.piece_folder(str(tmp_path / "machine2" / "smoke_10k"),
+                                                    to_train[:-1])  # fmt: skip
     assert f"--seeds 0-2 --alpha 1 --set eval_every=1000 --records {records}" in (
         meta_training.xt.study_command("meta_training.py", args)
     )
@@ -313,3 +321,23 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
     assert ma["seeds"] == 3 and sorted(ma["return"]["values"]) == [100.0, 110.0, 120.0]
     base = next(r for r in rows if r["alpha"] == 0.0)
     assert base["seeds"] == 3 and ma["paper_direction"] is None  # under 5 seeds: no verdict
+
+
+def test_a_piece_with_no_tables_writes_no_table(tmp_path, monkeypatch):
+    """``--no-tables`` (a piece of a grid) leaves ``experiments/results`` alone, where the same
+    call without it writes the study's table (over whatever seeds the runs hold)."""
+    ensemble_size = importlib.import_module("ensemble_size")
+    monkeypatch.setattr(ensemble_size, "RESULTS", str(tmp_path / "results"))
+    argv = ["ensemble_size.py", "--scale", "smoke", "--seeds", "0", "--sizes", "1",
+            "--trajectories", "16", "--collect-only", "--runs", str(tmp_path / "runs"),
+            "--records", str(tmp_path / "records")]  # fmt: skip
+    monkeypatch.setattr(sys, "argv", [*argv, "--no-tables"])
+    ensemble_size.main()
+    assert not (tmp_path / "results").exists()
+    monkeypatch.setattr(sys, "argv", argv)
+    ensemble_size.main()
+    assert sorted(os.listdir(tmp_path / "results")) == [
+        "ensemble_size_smoke.json",
+        "ensemble_size_smoke.md",
+        "ensemble_size_smoke.png",
+    ]
