@@ -239,7 +239,8 @@ def adaptation_claim(srcs: list[dict]) -> dict[str, Any]:
             if not change or not change.get("n"):
                 continue
             d = stats.direction((change["ci_low"], change["ci_high"]))
-            parts.append(f"{env} {xt.stage_label(int(last))} ({src['tag'].split(' ')[0]}): "
+            parts.append(f"{env} {xt.stage_label(int(last))} alpha {src['alpha']:g} "
+                         f"({src['tag'].split(' ')[0]}): "
                          f"change {change['mean']:.3g} [{change['ci_low']:.3g}, "
                          f"{change['ci_high']:.3g}] n={change['n']}")  # fmt: skip
             enough = change["n"] >= xt.MIN_SEEDS
@@ -488,7 +489,8 @@ def main() -> None:
         *cost_claims(),
     ]  # fmt: skip
     result = {"date": datetime.date.today().isoformat(),
-              "sources": [f"{s['tag']} ({', '.join(sorted(s['tables']))})" for s in srcs],
+              "sources": [f"{s['tag']} ({', '.join(sorted(s['tables']))}, alpha {s['alpha']:g})"
+                          for s in srcs],
               "headline": headline,
               "reading": reading_study(), "cells": cells}  # fmt: skip
     runner.write_json_atomic(os.path.join(RESULTS, "paper_claims.json"), result)
