@@ -197,11 +197,7 @@ def main() -> None:
                              "members kept there instead of training them: the study in "
                              "pieces on machines that do not keep runs/ "
                              "(experiments/records)")  # fmt: skip
-    parser.add_argument(
-        "--no-tables",
-        action="store_true",
-        help="train (and keep the records) only: for a piece of the study",
-    )
+    xt.add_no_tables_argument(parser)
     args = parser.parse_args()
     configs = members(args)
     tag = args.scale if args.steps is None else f"{args.scale}_{args.algo}_{args.steps // 1000}k"

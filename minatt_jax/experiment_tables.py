@@ -180,16 +180,21 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
                              "stage, and read members kept there instead of training them: "
                              "a grid run in pieces (--seeds) on machines that do not keep "
                              "runs/, e.g. experiments/records")  # fmt: skip
-    parser.add_argument("--no-tables", action="store_true",
-                        help="train (and keep the records) only: for a piece of a grid, "
-                             "whose tables would hold its own members alone and overwrite "
-                             "the whole grid's")  # fmt: skip
+    add_no_tables_argument(parser)
     if reuse:
         parser.add_argument("--reuse", action="append", default=[], metavar="FOLDER",
                             help="another study's runs (e.g. runs/meta_training/halfcheetah/"
                                  "cpu_10k): its members with this study's settings that "
                                  "reached every stage are read, not trained again "
                                  "(repeatable)")  # fmt: skip
+
+
+def add_no_tables_argument(parser: argparse.ArgumentParser) -> None:
+    """``--no-tables``: train (and keep the records) only, for a piece of a grid."""
+    parser.add_argument("--no-tables", action="store_true",
+                        help="train (and keep the records) only: for a piece of a grid, "
+                             "whose tables would hold its own members alone and overwrite "
+                             "the whole grid's")  # fmt: skip
 
 
 def study_preset(args: argparse.Namespace) -> Any:
