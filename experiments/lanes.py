@@ -5,18 +5,22 @@
         --records experiments/records --no-tables
 
 Each value replaces ``{}`` in the command: one piece each, queued over ``--lanes`` processes
-that each take the next piece when theirs ends. A lane is pinned to one core (``taskset -c``
-where it exists) and runs XLA's CPU backend on one thread. Why: on the 2-core machine two such
-lanes trained 8 HalfCheetah MB-MPO members 1.48x faster than one 2-thread process
-(experiments/README.md), since one member's small matmuls do not fill two cores. Each piece's
-output goes to ``<logs>/<value>.log``; a line is printed as each piece starts and ends, and the
-exit status is 1 if any piece failed.
+that each take the next piece when theirs ends. Where ``{}`` stands alone as an argument, a value
+of several words becomes several arguments, so a piece can be a split of the arms as well as a
+seed: ``--values "--seeds 2 --sizes 20 1" "--seeds 2 --sizes 15 5" -- ... {}``. A lane is
+pinned to one core (``taskset -c`` where it exists) and runs XLA's CPU backend on one thread.
+Why: on the 2-core machine two such lanes trained 8 HalfCheetah MB-MPO members 1.48x faster than
+one 2-thread process (experiments/README.md), since one member's small matmuls do not fill two
+cores. Each piece's output goes to ``<logs>/<value>.log`` (its words joined by ``_``);
+a line is printed as each piece starts and ends, and the exit status is 1 if any piece failed.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -30,9 +34,18 @@ def fail(message: str) -> None:
     raise SystemExit(2)
 
 
+def log_name(value: str) -> str:
+    """A file name for ``value``'s log: its words without leading dashes, joined by ``_``."""
+    words = (w.lstrip("-") for w in value.split())
+    return re.sub(r"[^A-Za-z0-9.=+-]+", "_", "_".join(words)).strip("_") or "_"
+
+
 def lane_command(command: list[str], value: str, core: int | None) -> list[str]:
-    """``command`` with ``{}`` replaced by ``value``, pinned to ``core`` (None: not pinned)."""
-    argv = [a.replace("{}", value) for a in command]
+    """``command`` with ``{}`` replaced by ``value``, pinned to ``core`` (None: not pinned).
+
+    A ``{}`` that is a whole argument becomes the value's words (shell quoting rules)."""
+    argv = [w for a in command
+            for w in (shlex.split(value) if a == "{}" else [a.replace("{}", value)])]  # fmt: skip
     return (["taskset", "-c", str(core)] if core is not None else []) + argv
 
 
@@ -52,13 +65,14 @@ def run(command: list[str], values: list[str], lanes: int, logs: str,
     while queue or running:
         while queue and free:
             lane, value = free.pop(0), queue.pop(0)
-            log = open(os.path.join(logs, f"{value}.log"), "w")  # noqa: SIM115 (closed below)
+            log_path = os.path.join(logs, f"{log_name(value)}.log")
+            log = open(log_path, "w")  # noqa: SIM115 (closed below)
             proc = subprocess.Popen(lane_command(command, value, lane if pin else None),
                                     stdout=log, stderr=subprocess.STDOUT,
                                     env=lane_env(dict(os.environ)))  # fmt: skip
             running[value] = (proc, lane, log)
             print(f"[{time.time() - start:7.0f} s] lane {lane}: {value} started "
-                  f"({os.path.join(logs, value + '.log')})", flush=True)  # fmt: skip
+                  f"({log_path})", flush=True)  # fmt: skip
         time.sleep(0.2)
         for value, (proc, lane, log) in list(running.items()):
             if proc.poll() is not None:
@@ -87,8 +101,8 @@ def main() -> None:
         fail("the command after -- needs {} where each value goes")
     if not 1 <= args.lanes <= (os.cpu_count() or 1):
         fail(f"--lanes {args.lanes}: this machine has {os.cpu_count()} cores")
-    if len(set(args.values)) != len(args.values):
-        fail("--values repeats a value (each names its log)")
+    if len({log_name(v) for v in args.values}) != len(args.values):
+        fail("--values repeats a value (each names its log: words joined by _)")
     status = run(command, args.values, args.lanes, args.logs, pin=not args.no_pin)
     failed = [v for v, rc in status.items() if rc != 0]
     print(f"lanes.py: {len(status) - len(failed)} of {len(status)} pieces ended well"

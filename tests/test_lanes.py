@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -44,11 +45,25 @@ def test_a_failed_piece_is_named_and_the_others_still_run(tmp_path):
     assert "failed: bad" in r.stdout
 
 
+def test_a_value_of_several_words_becomes_several_arguments(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    piece = ("import json, sys; open(sys.argv[-1] + '/' + sys.argv[1], 'w')"
+             ".write(json.dumps(sys.argv[1:-1]))")  # fmt: skip
+    r = lanes(tmp_path, "--lanes", "1", "--values", "a --sizes 20 1", "b", "--",
+              sys.executable, "-c", piece, "{}", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "a").read_text()) == ["a", "--sizes", "20", "1"]
+    assert json.loads((out / "b").read_text()) == ["b"]
+    assert sorted(os.listdir(tmp_path / "logs")) == ["a_sizes_20_1.log", "b.log"]
+
+
 def test_bad_input_exits_2_with_one_line(tmp_path):
     for args in (["--values", "0", "--", "echo", "no placeholder"],
                  ["--values", "0", "echo", "{}"],
                  ["--lanes", "999", "--values", "0", "--", "echo", "{}"],
-                 ["--values", "0", "0", "--", "echo", "{}"]):  # fmt: skip
+                 ["--values", "0", "0", "--", "echo", "{}"],
+                 ["--values", "a b", "a_b", "--", "echo", "{}"]):  # fmt: skip
         r = lanes(tmp_path, *args)
         assert r.returncode == 2, args
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
