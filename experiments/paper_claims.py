@@ -125,12 +125,17 @@ def evidence(srcs: list[dict], env: str, phase: str, stage: int, alpha: float,
     return max(found, key=lambda f: f[0])[1] if found else None
 
 
+def diff_interval(ev: dict[str, Any]) -> tuple[float, float]:
+    """The 95% bootstrap interval of MA - MB-MPO for one cell's evidence."""
+    ci = ev["ma"].get("diff_ci")
+    return tuple(ci) if ci else stats.bootstrap_diff_ci(ev["ma"]["values"], ev["mbmpo"]["values"])
+
+
 def verdict(claimed: str, ev: dict[str, Any] | None, stage: int) -> tuple[str, str]:
     """(verdict, reason) for a claimed direction of MA - MB-MPO (see the module docstring)."""
     if ev is None:
         return "not tested", "no run at any scale yet"
-    lo, hi = ev["ma"].get("diff_ci", stats.bootstrap_diff_ci(ev["ma"]["values"],
-                                                              ev["mbmpo"]["values"]))  # fmt: skip
+    lo, hi = diff_interval(ev)
     ours = stats.direction((lo, hi))
     n = min(ev["ma"]["n"], ev["mbmpo"]["n"])
     measured = f"ours {ours}" if ours != "unresolved" else "our interval holds zero"
@@ -181,7 +186,14 @@ def aggregate(name: str, paper: str, rows: list[dict[str, Any]]) -> dict[str, An
     else:
         v = "inconclusive at this scale"
     ours = "; ".join(_ours_text(r) for r in rows if r["ours"])
-    reason = ", ".join(f"{k} {c}" for k, c in counts.items() if c) + " of the table cells"
+    reason = f"{len(rows)} table cells: " + ", ".join(f"{c} {k}" for k, c in counts.items() if c)
+    measured = [r for r in rows if r["ours"]]
+    if measured:
+        way = [(stats.direction(diff_interval(r["ours"])), r["claimed"]) for r in measured]
+        same = sum(w == claimed for w, claimed in way)
+        other = sum(w == OPPOSITE[claimed] for w, claimed in way)
+        reason += (f"; at our last stage MA's interval is on the paper's side in {same}, on the "
+                   f"other in {other}, holds zero in {len(way) - same - other}")  # fmt: skip
     return {"claim": name, "paper": paper, "ours": ours or "-", "verdict": v, "reason": reason}
 
 

@@ -87,6 +87,24 @@ def test_tables_and_verdicts_from_constructed_runs(population):
     assert adaptation["verdict"] == "reproduced"
 
 
+def test_a_headline_claim_counts_its_cells_and_the_side_each_interval_is_on():
+    def cell(claimed, ci, verdict):
+        ev = {"stage": 10_000, "mbmpo": {"n": 5, "mean": 1.0}, "ma": {"n": 5, "mean": 2.0,
+                                                                      "diff_ci": ci}}  # fmt: skip
+        return {"env": "hopper", "claimed": claimed, "ours": ev, "verdict": verdict}
+
+    rows = [cell("higher", (1.0, 2.0), "inconclusive at this scale"),
+            cell("lower", (1.0, 2.0), "inconclusive at this scale"),
+            cell("lower", (-1.0, 2.0), "inconclusive at this scale"),
+            {"env": "walker2d", "claimed": "lower", "ours": None,
+             "verdict": "not tested"}]  # fmt: skip
+    claim = paper_claims.aggregate("claim", "paper", rows)
+    assert claim["verdict"] == "inconclusive at this scale"
+    assert claim["reason"] == ("4 table cells: 3 inconclusive at this scale, 1 not tested; at our "
+                               "last stage MA's interval is on the paper's side in 1, on the other "
+                               "in 1, holds zero in 1")  # fmt: skip
+
+
 def test_fewer_than_five_seeds_give_no_verdict(population):
     configs, out_dir = population
     four = [c for c in configs if c.seed < 4]
