@@ -101,6 +101,11 @@ def main() -> None:
         fail("the command after -- needs {} where each value goes")
     if not 1 <= args.lanes <= (os.cpu_count() or 1):
         fail(f"--lanes {args.lanes}: this machine has {os.cpu_count()} cores")
+    for v in args.values:
+        try:
+            shlex.split(v)
+        except ValueError as e:
+            fail(f"--values {v!r}: {e}")
     if len({log_name(v) for v in args.values}) != len(args.values):
         fail("--values repeats a value (each names its log: words joined by _)")
     status = run(command, args.values, args.lanes, args.logs, pin=not args.no_pin)

@@ -63,7 +63,8 @@ def test_bad_input_exits_2_with_one_line(tmp_path):
                  ["--values", "0", "echo", "{}"],
                  ["--lanes", "999", "--values", "0", "--", "echo", "{}"],
                  ["--values", "0", "0", "--", "echo", "{}"],
-                 ["--values", "a b", "a_b", "--", "echo", "{}"]):  # fmt: skip
+                 ["--values", "a b", "a_b", "--", "echo", "{}"],
+                 ["--values", 'a "b', "--", "echo", "{}"]):  # fmt: skip
         r = lanes(tmp_path, *args)
         assert r.returncode == 2, args
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
