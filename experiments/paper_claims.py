@@ -131,10 +131,11 @@ def diff_interval(ev: dict[str, Any]) -> tuple[float, float]:
     return tuple(ci) if ci else stats.bootstrap_diff_ci(ev["ma"]["values"], ev["mbmpo"]["values"])
 
 
-def verdict(claimed: str, ev: dict[str, Any] | None, stage: int) -> tuple[str, str]:
-    """(verdict, reason) for a claimed direction of MA - MB-MPO (see the module docstring)."""
+def verdict(claimed: str, ev: dict[str, Any] | None, stage: int) -> tuple[str, str, str | None]:
+    """(verdict, reason, our direction) for a claimed direction of MA - MB-MPO (see the module
+    docstring); our direction is ``stats.direction`` of the interval, None without evidence."""
     if ev is None:
-        return "not tested", "no run at any scale yet"
+        return "not tested", "no run at any scale yet", None
     lo, hi = diff_interval(ev)
     ours = stats.direction((lo, hi))
     n = min(ev["ma"]["n"], ev["mbmpo"]["n"])
@@ -142,14 +143,14 @@ def verdict(claimed: str, ev: dict[str, Any] | None, stage: int) -> tuple[str, s
     if ev["stage"] != stage:
         return ("inconclusive at this scale",
                 f"our last stage is {xt.stage_label(ev['stage'])}, the paper's "
-                f"{xt.stage_label(stage)}; {measured}")  # fmt: skip
+                f"{xt.stage_label(stage)}; {measured}", ours)  # fmt: skip
     if n < xt.MIN_SEEDS:
-        return "inconclusive at this scale", f"{n} seeds per arm; {measured}"
+        return "inconclusive at this scale", f"{n} seeds per arm; {measured}", ours
     if ours == claimed:
-        return "reproduced", f"interval {lo:.3g} .. {hi:.3g}"
+        return "reproduced", f"interval {lo:.3g} .. {hi:.3g}", ours
     if ours == OPPOSITE[claimed]:
-        return "not reproduced", f"the other direction: interval {lo:.3g} .. {hi:.3g}"
-    return "inconclusive at this scale", f"interval {lo:.3g} .. {hi:.3g} holds zero"
+        return "not reproduced", f"the other direction: interval {lo:.3g} .. {hi:.3g}", ours
+    return "inconclusive at this scale", f"interval {lo:.3g} .. {hi:.3g} holds zero", ours
 
 
 def table_claims(srcs: list[dict]) -> list[dict[str, Any]]:
@@ -162,11 +163,11 @@ def table_claims(srcs: list[dict]) -> list[dict[str, Any]]:
         for m in paper_numbers.METRICS:
             claimed = "higher" if row[m][0] > base[m][0] else "lower"
             ev = evidence(srcs, env, phase, stage, alpha, m)
-            v, reason = verdict(claimed, ev, stage)
+            v, reason, ours = verdict(claimed, ev, stage)
             claims.append({
                 "env": env, "phase": phase, "stage": stage, "alpha": alpha, "metric": m,
                 "paper_mbmpo": base[m], "paper_ma": row[m], "claimed": claimed,
-                "ours": ev, "verdict": v, "reason": reason,
+                "ours": ev, "direction": ours, "verdict": v, "reason": reason,
             })  # fmt: skip
     return claims
 
@@ -189,7 +190,7 @@ def aggregate(name: str, paper: str, rows: list[dict[str, Any]]) -> dict[str, An
     reason = f"{len(rows)} table cells: " + ", ".join(f"{c} {k}" for k, c in counts.items() if c)
     measured = [r for r in rows if r["ours"]]
     if measured:
-        way = [(stats.direction(diff_interval(r["ours"])), r["claimed"]) for r in measured]
+        way = [(r["direction"], r["claimed"]) for r in measured]
         same = sum(w == claimed for w, claimed in way)
         other = sum(w == OPPOSITE[claimed] for w, claimed in way)
         reason += (f"; at our last stage MA's interval is on the paper's side in {same}, on the "
@@ -360,7 +361,7 @@ def ablation_claim() -> dict[str, Any]:
     parts, verdicts, reasons = [f"full {full['mean']:.3g} (n={full['n']})"], [], []
     for arm in arms:
         ours = rows[arm]["return"]
-        v, reason = verdict("lower", {"stage": step, "ma": ours, "mbmpo": full},
+        v, reason, _ = verdict("lower", {"stage": step, "ma": ours, "mbmpo": full},
                             max(paper_numbers.STAGES))  # fmt: skip
         parts.append(f"{arm} {ours['mean']:.3g} (n={ours['n']}; {arm} - full "
                      f"[{ours['diff_ci'][0]:.3g}, {ours['diff_ci'][1]:.3g}])")  # fmt: skip
@@ -409,7 +410,7 @@ def ensemble_claim() -> dict[str, Any]:
         ours, other = dict(rows[arm]["return"]), rows[against]["return"]
         # the row's own interval is against the preset's arm: this pair's replaces it
         lo, hi = ours["diff_ci"] = stats.bootstrap_diff_ci(ours["values"], other["values"])
-        v, reason = verdict(claimed, {"stage": step, "ma": ours, "mbmpo": other},
+        v, reason, _ = verdict(claimed, {"stage": step, "ma": ours, "mbmpo": other},
                             max(paper_numbers.STAGES))  # fmt: skip
         parts.append(f"{arm} {ours['mean']:.3g} vs {against} {other['mean']:.3g} (n="
                      f"{min(ours['n'], other['n'])}; difference [{lo:.3g}, {hi:.3g}])")  # fmt: skip

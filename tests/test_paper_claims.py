@@ -88,16 +88,18 @@ def test_tables_and_verdicts_from_constructed_runs(population):
 
 
 def test_a_headline_claim_counts_its_cells_and_the_side_each_interval_is_on():
-    def cell(claimed, ci, verdict):
-        ev = {"stage": 10_000, "mbmpo": {"n": 5, "mean": 1.0}, "ma": {"n": 5, "mean": 2.0,
-                                                                      "diff_ci": ci}}  # fmt: skip
-        return {"env": "hopper", "claimed": claimed, "ours": ev, "verdict": verdict}
+    def cell(claimed, ci):
+        ev = ci and {"stage": 10_000, "mbmpo": {"n": 5, "mean": 1.0},
+                     "ma": {"n": 5, "mean": 2.0, "diff_ci": ci}}  # fmt: skip
+        v, _, ours = paper_claims.verdict(claimed, ev, 200_000)
+        return {"env": "hopper", "claimed": claimed, "ours": ev, "direction": ours, "verdict": v}
 
-    rows = [cell("higher", (1.0, 2.0), "inconclusive at this scale"),
-            cell("lower", (1.0, 2.0), "inconclusive at this scale"),
-            cell("lower", (-1.0, 2.0), "inconclusive at this scale"),
-            {"env": "walker2d", "claimed": "lower", "ours": None,
-             "verdict": "not tested"}]  # fmt: skip
+    rows = [
+        cell("higher", (1.0, 2.0)),
+        cell("lower", (1.0, 2.0)),
+        cell("lower", (-1.0, 2.0)),
+        cell("lower", None),
+    ]
     claim = paper_claims.aggregate("claim", "paper", rows)
     assert claim["verdict"] == "inconclusive at this scale"
     assert claim["reason"] == ("4 table cells: 3 inconclusive at this scale, 1 not tested; at our "
