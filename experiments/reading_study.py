@@ -3,7 +3,7 @@
     python experiments/reading_study.py [--scale smoke|cpu|paper] [--envs hopper halfcheetah]
         [--algo mbmpo] [--seeds 0-4] [--alphas 0.01 0.05 1 5]
         [--placements actor_loss reward entropy] [--normalize off on] [--steps N]
-        [--runs runs/reading_study] [--records experiments/records]
+        [--runs runs/reading_study] [--records experiments/records] [--set FIELD=VALUE ...]
 
 The paper puts the MA penalty in three places (added to the reward, to the policy loss, inside
 the SAC objective beside the entropy) and says rewards were normalized. Arms: every placement x
@@ -48,6 +48,7 @@ MIN_SEEDS = xt.MIN_SEEDS  # fewer seeds per arm: no verdict
 def members(args: argparse.Namespace) -> list[Any]:
     """Every (environment, normalization, placement, alpha, seed); alpha 0 once per
     environment and normalization (no penalty: the placement does not matter)."""
+    preset = xt.study_preset(args)
     out = []
     for env in args.envs:
         for norm in (n == "on" for n in args.normalize):
@@ -56,7 +57,7 @@ def members(args: argparse.Namespace) -> list[Any]:
             for placement, alpha in arms:
                 for seed in population.parse_seeds(args.seeds):
                     out.append(resolve(with_overrides(
-                        PRESETS[args.scale], env=env, algo=args.algo, seed=seed,
+                        preset, env=env, algo=args.algo, seed=seed,
                         ma_alpha=alpha, ma_placement=placement, sac_normalize_reward=norm,
                         total_steps=args.steps,
                     )))  # fmt: skip
@@ -197,6 +198,7 @@ def main() -> None:
                              "members kept there instead of training them: the study in "
                              "pieces on machines that do not keep runs/ "
                              "(experiments/records)")  # fmt: skip
+    xt.add_set_argument(parser)
     xt.add_no_tables_argument(parser)
     args = parser.parse_args()
     configs = members(args)
@@ -210,6 +212,7 @@ def main() -> None:
                f"{args.seeds} --alphas {' '.join(f'{a:g}' for a in args.alphas)} "
                f"--placements {' '.join(args.placements)} --normalize {' '.join(args.normalize)}"
                + (f" --steps {args.steps}" if args.steps else "")
+               + "".join(f" --set {o}" for o in args.overrides)
                + (f" --records {args.records}" if args.records else ""))  # fmt: skip
     result = {**xt.provenance(command), "arms": rows}
     header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "

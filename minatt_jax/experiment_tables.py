@@ -170,10 +170,7 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
     parser.add_argument("--collect-only", action="store_true",
                         help="tabulate what the runs hold now, without training")  # fmt: skip
     parser.add_argument("--runs", default=runs)
-    parser.add_argument("--set", action="append", default=[], dest="overrides",
-                        metavar="FIELD=VALUE",
-                        help="override a configuration field for every member, e.g. "
-                             "buffer_size=10000 (repeatable)")  # fmt: skip
+    add_set_argument(parser)
     parser.add_argument("--records", default=None, metavar="FOLDER",
                         help="keep each member's small result files (config.json, "
                              "metrics.jsonl, meta_test/) in FOLDER once it reached every "
@@ -187,6 +184,15 @@ def add_study_arguments(parser: argparse.ArgumentParser, envs: list[str], runs: 
                                  "cpu_10k): its members with this study's settings that "
                                  "reached every stage are read, not trained again "
                                  "(repeatable)")  # fmt: skip
+
+
+def add_set_argument(parser: argparse.ArgumentParser) -> None:
+    """``--set FIELD=VALUE`` (repeatable): a configuration override for every member, read by
+    ``study_preset``."""
+    parser.add_argument("--set", action="append", default=[], dest="overrides",
+                        metavar="FIELD=VALUE",
+                        help="override a configuration field for every member, e.g. "
+                             "buffer_size=10000 (repeatable)")  # fmt: skip
 
 
 def add_no_tables_argument(parser: argparse.ArgumentParser) -> None:

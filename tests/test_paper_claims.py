@@ -318,8 +318,10 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
         args = reading_study.argparse.Namespace(
             scale="smoke", envs=["hopper"], algo="mbmpo", seeds=seeds, alphas=[1.0],
             placements=["entropy"], normalize=["off"], steps=None, analyse_only=False,
-            runs=str(tmp_path / machine), records=str(records))  # fmt: skip
+            runs=str(tmp_path / machine), records=str(records),
+            overrides=["buffer_size=1234"])  # fmt: skip
         configs = reading_study.members(args)
+        assert all(c.buffer_size == 1234 for c in configs)  # --set reaches every member
         return configs, reading_study.member_dirs(args, configs, "smoke")
 
     configs, dirs = piece("0-1", "machine1")
@@ -341,6 +343,16 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
     assert ma["seeds"] == 3 and sorted(ma["return"]["values"]) == [100.0, 110.0, 120.0]
     base = next(r for r in rows if r["alpha"] == 0.0)
     assert base["seeds"] == 3 and ma["paper_direction"] is None  # under 5 seeds: no verdict
+
+
+def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
+    reading_study = importlib.import_module("reading_study")
+    monkeypatch.setattr(sys, "argv", ["reading_study.py", "--scale", "smoke", "--set",
+                                      "no_such_field=1", "--analyse-only"])  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        reading_study.main()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and "no_such_field" in err
 
 
 def test_a_piece_with_no_tables_writes_no_table(tmp_path, monkeypatch):
