@@ -16,7 +16,9 @@ Per arm (the final deterministic evaluation of each seed): return, feedback, fee
 energy, mean +- std with 95% bootstrap intervals, and the difference from the baseline with its
 interval (``minatt_jax.stats``). An arm goes the **paper's direction** when feedback and energy
 are lower (intervals below zero) and the return is not lower (its interval reaches zero or
-above); with fewer than 5 seeds in an arm or its baseline there is no verdict. Writes
+above); with fewer than 5 seeds in an arm or its baseline there is no verdict. Contrasts answer
+the study's other questions with intervals: normalization on minus off for each arm (the
+baseline included) and each pair of placements at the same normalization and alpha. Writes
 ``experiments/results/reading_study_<scale>.{json,md}``, each arm with its seeds' values.
 
 Arms that the runs folder does not hold (``--normalize on`` alone, or runs trained on another
@@ -118,6 +120,63 @@ def analyse(configs: list[Any], dirs: list[str]) -> list[dict[str, Any]]:
     return rows
 
 
+def _contrast(
+    env: str, kind: str, a: dict[str, Any], b: dict[str, Any], fixed: str, label: str
+) -> dict[str, Any]:
+    """Arm ``a`` minus arm ``b``: per metric the difference of the seed means and its interval."""
+    out: dict[str, Any] = {"env": env, "kind": kind, "contrast": label, "fixed": fixed,
+                           "seeds": [a["seeds"], b["seeds"]]}  # fmt: skip
+    resolved = min(a["seeds"], b["seeds"]) >= MIN_SEEDS
+    for m in METRICS:
+        ci = stats.bootstrap_diff_ci(a[m]["values"], b[m]["values"])
+        out[m] = {"diff": a[m]["mean"] - b[m]["mean"], "diff_ci": list(ci),
+                  "direction": stats.direction(ci) if resolved else None}  # fmt: skip
+    return out
+
+
+def contrasts(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The study's other two questions, with intervals: what reward normalization does to an
+    arm (on minus off, same placement and alpha, the alpha-0 baseline included), and how the
+    placements differ (each pair at the same normalization and alpha). Arms without their
+    seeds' values (rows stored by an older version) are left out."""
+    arms = {arm_key(r): r for r in rows if all("values" in r[m] for m in METRICS)}
+    out = []
+    for (env, norm, placement, alpha), row in sorted(arms.items()):
+        off = arms.get((env, False, placement, alpha))
+        if norm and off is not None:
+            fixed = "alpha 0" if alpha == 0 else f"{placement}, alpha {alpha:g}"
+            out.append(_contrast(env, "normalization", row, off, fixed, "on - off"))
+    for (env, norm, placement, alpha), row in sorted(arms.items()):
+        for other in sorted(p for (e, n, p, a) in arms if (e, n, a) == (env, norm, alpha)):
+            if alpha > 0 and other > placement:
+                fixed = f"norm {'on' if norm else 'off'}, alpha {alpha:g}"
+                out.append(_contrast(env, "placement", row, arms[(env, norm, other, alpha)],
+                                     fixed, f"{placement} - {other}"))  # fmt: skip
+    return out
+
+
+def contrasts_markdown(found: list[dict[str, Any]]) -> str:
+    """The contrasts as a table: difference of means [95% interval] (direction)."""
+    if not found:
+        return ""
+    lines = ["## Contrasts", "",
+             "Arm minus arm, seeds resampled within each arm: difference of the means [95% "
+             "bootstrap interval] (lower / higher when the interval excludes zero; no direction "
+             f"under {MIN_SEEDS} seeds in either arm).", "",
+             "| env | contrast | held fixed | seeds | " + " | ".join(METRICS) + " |",
+             "|---" * (len(METRICS) + 4) + "|"]  # fmt: skip
+    for c in found:
+        cells = []
+        for m in METRICS:
+            lo, hi = c[m]["diff_ci"]
+            direction = f" ({c[m]['direction']})" if c[m]["direction"] else ""
+            cells.append(f"{c[m]['diff']:.4g} [{lo:.4g}, {hi:.4g}]{direction}")
+        seeds = f"{c['seeds'][0]} / {c['seeds'][1]}"
+        lines.append(f"| {c['env']} | {c['contrast']} | {c['fixed']} | {seeds} | "
+                     + " | ".join(cells) + " |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
 def with_stored(rows: list[dict[str, Any]], path: str) -> list[dict[str, Any]]:
     """``rows`` and, for arms they lack, the rows of the results file at ``path`` (marked
     ``"stored": True``); an arm measured now replaces its stored row."""
@@ -214,13 +273,14 @@ def main() -> None:
                + (f" --steps {args.steps}" if args.steps else "")
                + "".join(f" --set {o}" for o in args.overrides)
                + (f" --records {args.records}" if args.records else ""))  # fmt: skip
-    result = {**xt.provenance(command), "arms": rows}
+    found = contrasts(rows)
+    result = {**xt.provenance(command), "arms": rows, "contrasts": found}
     header = (f"# Reading study ({tag})\n\n`{command}` on {result['device']}. "
               "Final deterministic evaluation per seed; mean +- std over seeds [95% bootstrap "
               "interval of the mean] (direction against alpha = 0 with the same reward "
               "normalization, when its interval excludes zero). Seeds marked (stored): the arm's "
               "row as an earlier run wrote it (its runs are not in this runs folder).")  # fmt: skip
-    text = markdown(rows, header)
+    text = markdown(rows, header) + "\n" + contrasts_markdown(found)
     xt.write_study(RESULTS, f"reading_study_{tag}", result, text)
     print(text)
 

@@ -345,6 +345,43 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
     assert base["seeds"] == 3 and ma["paper_direction"] is None  # under 5 seeds: no verdict
 
 
+def test_reading_study_contrasts_normalization_and_placements():
+    """Contrasts against hand-computed differences: normalization on minus off adds exactly
+    100 to every seed's return (higher, both arms with 5 seeds); two placements with equal
+    seeds differ by zero (unresolved); an arm under 5 seeds gets no direction; a stored row
+    without its seeds' values is left out; alpha 0 has no placement contrast."""
+    reading_study = importlib.import_module("reading_study")
+
+    def row(norm, placement, alpha, values, with_values=True):
+        metrics = {m: {**reading_study.stats.summary(values),
+                       **({"values": list(values)} if with_values else {})}
+                   for m in reading_study.METRICS}  # fmt: skip
+        return {"env": "hopper", "normalize_reward": norm, "placement": placement,
+                "alpha": alpha, "seeds": len(values), "step": 10, **metrics}  # fmt: skip
+
+    seeds = [1.0, 2.0, 4.0, 8.0, 16.0]
+    rows = [row(False, "actor_loss", 0.0, seeds),
+            row(True, "actor_loss", 0.0, [v + 100 for v in seeds]),
+            row(False, "actor_loss", 1.0, seeds), row(False, "entropy", 1.0, seeds),
+            row(False, "reward", 1.0, seeds[:3]),
+            row(True, "entropy", 1.0, seeds, with_values=False)]  # fmt: skip
+    found = reading_study.contrasts(rows)
+    labels = [(c["kind"], c["contrast"], c["fixed"]) for c in found]
+    assert labels == [("normalization", "on - off", "alpha 0"),
+                      ("placement", "actor_loss - entropy", "norm off, alpha 1"),
+                      ("placement", "actor_loss - reward", "norm off, alpha 1"),
+                      ("placement", "entropy - reward", "norm off, alpha 1")]  # fmt: skip
+    norm = found[0]["return"]
+    assert norm["diff"] == pytest.approx(100.0) and norm["direction"] == "higher"
+    assert norm["diff_ci"][0] > 0
+    same = found[1]["energy"]
+    assert same["diff"] == 0.0 and same["direction"] == "unresolved"
+    assert found[2]["seeds"] == [5, 3] and found[2]["return"]["direction"] is None
+    text = reading_study.contrasts_markdown(found)
+    assert "| hopper | on - off | alpha 0 | 5 / 5 | 100 [" in text and "(higher)" in text
+    assert reading_study.contrasts_markdown([]) == ""
+
+
 def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
     reading_study = importlib.import_module("reading_study")
     monkeypatch.setattr(sys, "argv", ["reading_study.py", "--scale", "smoke", "--set",
