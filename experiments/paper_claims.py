@@ -429,6 +429,26 @@ def missing_experiment(name: str, paper: str, pattern: str, command: str) -> dic
             "reason": "see the result file" if found else f"not run yet: `{command}`"}  # fmt: skip
 
 
+def _contrast_lines(contrasts: list[dict[str, Any]]) -> list[str]:
+    """What reward normalization does to the alpha-0 baseline, and how many placement pairs
+    differ, from a reading study's contrasts (directions only where both arms have the seeds)."""
+    lines = []
+    for c in contrasts:
+        if c["kind"] == "normalization" and c["fixed"] == "alpha 0":
+            said = ", ".join(f"{m} {c[m]['direction'] or 'no verdict'}"
+                             for m in ("return", "feedback_norm", "energy"))  # fmt: skip
+            lines.append(f"{c['env']}: reward normalization alone (alpha 0, on minus off): {said}")
+    pairs = [c for c in contrasts if c["kind"] == "placement"]
+    resolved = ("lower", "higher")
+    differ = [c for c in pairs if any(c[m]["direction"] in resolved for m in paper_numbers.METRICS)]
+    if pairs:
+        lines.append(
+            f"placement pairs at the same normalization and alpha: {len(differ)} of "
+            f"{len(pairs)} differ in at least one metric (interval excluding zero)"
+        )
+    return lines
+
+
 def reading_study() -> list[str]:
     lines = []
     for path in sorted(glob.glob(os.path.join(RESULTS, "reading_study_*.json"))):
@@ -441,6 +461,7 @@ def reading_study() -> list[str]:
                      + (", ".join(f"{a['placement']} alpha {a['alpha']:g} reward norm "
                                   f"{'on' if a['normalize_reward'] else 'off'}" for a in yes)
                         or "none") + f" (`{os.path.basename(path)[:-5]}.md`).")  # fmt: skip
+        lines += [f"  - {line}" for line in _contrast_lines(result.get("contrasts", []))]
     return lines or ["- No reading study result yet: `python experiments/reading_study.py`."]
 
 

@@ -380,6 +380,10 @@ def test_reading_study_contrasts_normalization_and_placements():
     text = reading_study.contrasts_markdown(found)
     assert "| hopper | on - off | alpha 0 | 5 / 5 | 100 [" in text and "(higher)" in text
     assert reading_study.contrasts_markdown([]) == ""
+    summary = paper_claims._contrast_lines(found)  # what paper_claims.md says of them
+    assert summary[0].startswith("hopper: reward normalization alone (alpha 0, on minus off): "
+                                 "return higher, feedback_norm higher, energy higher")  # fmt: skip
+    assert summary[1].endswith("0 of 3 differ in at least one metric (interval excluding zero)")
 
 
 def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
