@@ -434,7 +434,7 @@ def _contrast_lines(contrasts: list[dict[str, Any]]) -> list[str]:
     differ, from a reading study's contrasts (directions only where both arms have the seeds)."""
     lines = []
     for c in contrasts:
-        if c["kind"] == "normalization" and c["fixed"] == "alpha 0":
+        if c["kind"] == "normalization" and c["held"]["alpha"] == 0:
             said = ", ".join(f"{m} {c[m]['direction'] or 'no verdict'}"
                              for m in ("return", "feedback_norm", "energy"))  # fmt: skip
             lines.append(f"{c['env']}: reward normalization alone (alpha 0, on minus off): {said}")

@@ -33,6 +33,7 @@ piece trains in a runs folder of its own (named by its members' digest).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 from typing import Any
@@ -120,12 +121,12 @@ def analyse(configs: list[Any], dirs: list[str]) -> list[dict[str, Any]]:
     return rows
 
 
-def _contrast(
-    env: str, kind: str, a: dict[str, Any], b: dict[str, Any], fixed: str, label: str
-) -> dict[str, Any]:
-    """Arm ``a`` minus arm ``b``: per metric the difference of the seed means and its interval."""
-    out: dict[str, Any] = {"env": env, "kind": kind, "contrast": label, "fixed": fixed,
-                           "seeds": [a["seeds"], b["seeds"]]}  # fmt: skip
+def _contrast(kind: str, a: dict[str, Any], b: dict[str, Any], held: dict[str, Any],
+              fixed: str, label: str) -> dict[str, Any]:  # fmt: skip
+    """Arm ``a`` minus arm ``b``: per metric the difference of the seed means and its interval.
+    ``held`` names what the two arms share (as fields), ``fixed`` says it for the table."""
+    out: dict[str, Any] = {"env": a["env"], "kind": kind, "contrast": label, "fixed": fixed,
+                           "held": held, "seeds": [a["seeds"], b["seeds"]]}  # fmt: skip
     resolved = min(a["seeds"], b["seeds"]) >= MIN_SEEDS
     for m in METRICS:
         ci = stats.bootstrap_diff_ci(a[m]["values"], b[m]["values"])
@@ -145,13 +146,18 @@ def contrasts(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         off = arms.get((env, False, placement, alpha))
         if norm and off is not None:
             fixed = "alpha 0" if alpha == 0 else f"{placement}, alpha {alpha:g}"
-            out.append(_contrast(env, "normalization", row, off, fixed, "on - off"))
-    for (env, norm, placement, alpha), row in sorted(arms.items()):
-        for other in sorted(p for (e, n, p, a) in arms if (e, n, a) == (env, norm, alpha)):
-            if alpha > 0 and other > placement:
-                fixed = f"norm {'on' if norm else 'off'}, alpha {alpha:g}"
-                out.append(_contrast(env, "placement", row, arms[(env, norm, other, alpha)],
-                                     fixed, f"{placement} - {other}"))  # fmt: skip
+            held = {"placement": placement, "alpha": alpha}
+            out.append(_contrast("normalization", row, off, held, fixed, "on - off"))
+    by_setting: dict[tuple, list[str]] = {}  # (env, norm, alpha) -> its placements, sorted
+    for env, norm, placement, alpha in sorted(arms):
+        if alpha > 0:
+            by_setting.setdefault((env, norm, alpha), []).append(placement)
+    for (env, norm, alpha), placements in by_setting.items():
+        held = {"normalize_reward": norm, "alpha": alpha}
+        fixed = f"norm {'on' if norm else 'off'}, alpha {alpha:g}"
+        for p, q in itertools.combinations(placements, 2):
+            a, b = arms[(env, norm, p, alpha)], arms[(env, norm, q, alpha)]
+            out.append(_contrast("placement", a, b, held, fixed, f"{p} - {q}"))
     return out
 
 
