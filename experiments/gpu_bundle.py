@@ -66,9 +66,8 @@ def main() -> None:
     os.makedirs(args.out, exist_ok=True)
     for old in glob.glob(os.path.join(args.out, "*.whl")):  # wheels of an earlier bundle only
         os.remove(old)
-    steps = [download_command(requirements, args.out, args.python),
-             [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", args.out, root]]  # fmt: skip
-    for command in steps:
+    build = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", args.out, root]
+    for command in (download_command(requirements, args.out, args.python), build):
         if subprocess.run(command).returncode != 0:
             fail(f"failed: {' '.join(command)}")
     wheels = sorted(glob.glob(os.path.join(args.out, "*.whl")))
