@@ -438,13 +438,18 @@ def _contrast_lines(contrasts: list[dict[str, Any]]) -> list[str]:
             said = ", ".join(f"{m} {c[m]['direction'] or 'no verdict'}"
                              for m in ("return", "feedback_norm", "energy"))  # fmt: skip
             lines.append(f"{c['env']}: reward normalization alone (alpha 0, on minus off): {said}")
-    pairs = [c for c in contrasts if c["kind"] == "placement"]
     resolved = ("lower", "higher")
-    differ = [c for c in pairs if any(c[m]["direction"] in resolved for m in paper_numbers.METRICS)]
-    if pairs:
+    for env in sorted({c["env"] for c in contrasts if c["kind"] == "placement"}):
+        pairs = [c for c in contrasts if c["kind"] == "placement" and c["env"] == env]
+        enough = [c for c in pairs if min(c["seeds"]) >= xt.MIN_SEEDS]
+        differ = [c for c in enough
+                  if any(c[m]["direction"] in resolved for m in paper_numbers.METRICS)]  # fmt: skip
+        few = len(pairs) - len(enough)
+        untold = f"; {few} more with under {xt.MIN_SEEDS} seeds in an arm, not counted"
         lines.append(
-            f"placement pairs at the same normalization and alpha: {len(differ)} of "
-            f"{len(pairs)} differ in at least one metric (interval excluding zero)"
+            f"{env}: placement pairs at the same normalization and alpha: {len(differ)} of "
+            f"{len(enough)} differ in at least one metric (interval excluding zero)"
+            + (untold if few else "")
         )
     return lines
 
@@ -455,12 +460,18 @@ def reading_study() -> list[str]:
         result = _read(path)
         yes = [a for a in result["arms"] if a.get("paper_direction") is True]
         judged = [a for a in result["arms"] if a.get("paper_direction") is not None]
-        lines.append(f"- `{result['command']}` ({result['device']}): {len(judged)} arms with "
-                     f">= {xt.MIN_SEEDS} seeds, {len(yes)} in the paper's direction (lower "
-                     "feedback and energy, return not lower): "
-                     + (", ".join(f"{a['placement']} alpha {a['alpha']:g} reward norm "
-                                  f"{'on' if a['normalize_reward'] else 'off'}" for a in yes)
-                        or "none") + f" (`{os.path.basename(path)[:-5]}.md`).")  # fmt: skip
+        short = [a for a in result["arms"] if a["alpha"] > 0 and "paper_direction" in a
+                 and a["paper_direction"] is None]  # fmt: skip
+        named = ", ".join(f"{a['env']} {a['placement']} alpha {a['alpha']:g} reward norm "
+                          f"{'on' if a['normalize_reward'] else 'off'}" for a in yes)  # fmt: skip
+        waiting = (f"; {len(short)} arms without a verdict yet (under {xt.MIN_SEEDS} seeds in "
+                   "the arm or its baseline)") if short else ""  # fmt: skip
+        lines.append(
+            f"- `{result['command']}` ({result['device']}): {len(judged)} arms with "
+            f">= {xt.MIN_SEEDS} seeds (and their baseline), {len(yes)} in the paper's "
+            f"direction (lower feedback and energy, return not lower): "
+            f"{named or 'none'}{waiting} (`{os.path.basename(path)[:-5]}.md`)."
+        )
         lines += [f"  - {line}" for line in _contrast_lines(result.get("contrasts", []))]
     return lines or ["- No reading study result yet: `python experiments/reading_study.py`."]
 

@@ -383,7 +383,32 @@ def test_reading_study_contrasts_normalization_and_placements():
     summary = paper_claims._contrast_lines(found)  # what paper_claims.md says of them
     assert summary[0].startswith("hopper: reward normalization alone (alpha 0, on minus off): "
                                  "return higher, feedback_norm higher, energy higher")  # fmt: skip
-    assert summary[1].endswith("0 of 3 differ in at least one metric (interval excluding zero)")
+    assert summary[1] == ("hopper: placement pairs at the same normalization and alpha: 0 of 1 "
+                          "differ in at least one metric (interval excluding zero); 2 more "
+                          "with under 5 seeds in an arm, not counted")  # fmt: skip
+
+
+def test_the_reading_study_line_names_the_env_of_each_arm_and_counts_those_waiting(
+    tmp_path, monkeypatch
+):
+    """paper_claims.md's summary of a two-environment study: an arm in the paper's direction
+    is named with its environment; an arm without a verdict (too few seeds in it or its
+    baseline) is counted apart from the judged ones, never as a 'no'."""
+    monkeypatch.setattr(paper_claims, "RESULTS", str(tmp_path))
+
+    def arm(env, alpha, direction=None):
+        verdict = {} if alpha == 0 else {"paper_direction": direction}
+        return {"env": env, "normalize_reward": False, "placement": "entropy", "alpha": alpha,
+                **verdict}  # fmt: skip
+
+    arms = [arm("hopper", 0.0), arm("hopper", 1.0, True), arm("hopper", 5.0, False),
+            arm("halfcheetah", 0.0), arm("halfcheetah", 1.0)]  # fmt: skip
+    with open(tmp_path / "reading_study_t.json", "w") as f:
+        json.dump({"command": "python x", "device": "cpu", "arms": arms, "contrasts": []}, f)
+    line = paper_claims.reading_study()[0]
+    assert "2 arms with >= 5 seeds (and their baseline), 1 in the paper's direction" in line
+    assert "hopper entropy alpha 1 reward norm off;" in line and "halfcheetah entropy" not in line
+    assert "1 arms without a verdict yet" in line
 
 
 def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
