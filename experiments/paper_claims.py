@@ -460,8 +460,8 @@ def reading_study() -> list[str]:
         result = _read(path)
         yes = [a for a in result["arms"] if a.get("paper_direction") is True]
         judged = [a for a in result["arms"] if a.get("paper_direction") is not None]
-        short = [a for a in result["arms"] if a["alpha"] > 0 and "paper_direction" in a
-                 and a["paper_direction"] is None]  # fmt: skip
+        # an MA arm has the key; None there: too few seeds in the arm or its baseline
+        short = [a for a in result["arms"] if a.get("paper_direction", False) is None]
         named = ", ".join(f"{a['env']} {a['placement']} alpha {a['alpha']:g} reward norm "
                           f"{'on' if a['normalize_reward'] else 'off'}" for a in yes)  # fmt: skip
         waiting = (f"; {len(short)} arms without a verdict yet (under {xt.MIN_SEEDS} seeds in "
