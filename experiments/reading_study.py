@@ -218,28 +218,35 @@ def markdown(rows: list[dict[str, Any]], header: str) -> str:
 def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[str]:
     """Trains (or resumes) the members, unless ``--analyse-only``, and returns each one's run
     directory. With ``--records``: members kept there are read, not trained; the others train
-    in a runs folder named by their digest (a piece of the study is a population of its own)
-    and, once finished, are kept there too."""
+    in a runs folder named by the piece's members and are kept there too, each group as it
+    finishes (a machine lost mid-piece loses only the group in progress)."""
     reused = xt.reused_runs(args, configs) if args.records else {}
     every_name = [population.member_name(c, SWEPT) for c in configs]
     to_train = [c for i, c in enumerate(configs) if i not in reused]
     names = [n for i, n in enumerate(every_name) if i not in reused]
     out_dir = os.path.join(args.runs, tag)
+    keep = None
     if args.records:  # a piece of the study: a population of its own
-        out_dir = xt.piece_folder(out_dir, names)
+        # Named by all its members, kept or not: groups kept as they finish leave the folder
+        # where it is, so the same piece run again resumes the group in progress.
+        out_dir = xt.piece_folder(out_dir, every_name)
+        steps = xt.stages(configs[0].total_steps, configs[0].eval_every)
+        target = os.path.join(args.records, "reading_study", tag)
+
+        def keep(dirs: list[str]) -> None:
+            xt.keep_records(dirs, steps, target, "reading_study")
+
         print(f"reading_study: {len(reused)} members read from {args.records}, "
               f"{len(to_train)} to train in {out_dir}", flush=True)  # fmt: skip
     if not args.analyse_only and to_train:
         resume = os.path.exists(os.path.join(out_dir, "population.json"))
         try:
-            population.train_population(to_train, out_dir, SWEPT, resume=resume)
+            population.train_population(to_train, out_dir, SWEPT, resume=resume,
+                                        after_group=keep)  # fmt: skip
         except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
             raise SystemExit(f"reading_study: {e}") from None
-    if args.records:
-        target = os.path.join(args.records, "reading_study", tag)
-        xt.keep_records([os.path.join(out_dir, n) for n in names],
-                        xt.stages(configs[0].total_steps, configs[0].eval_every), target,
-                        "reading_study")  # fmt: skip
+    if keep is not None:  # also those trained before, or found by --analyse-only
+        keep([os.path.join(out_dir, n) for n in names])
     return [reused.get(i) or os.path.join(out_dir, n) for i, n in enumerate(every_name)]
 
 

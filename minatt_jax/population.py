@@ -284,9 +284,12 @@ def train_population(
     resume: bool = False,
     log: Callable[[str], None] = print,
     process: tuple[int, int] | None = None,
+    after_group: Callable[[list[str]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Trains (or resumes) this process's share of every group (all members in one process),
-    group by group; returns each member's last record ({} for other processes' members)."""
+    group by group; returns each member's last record ({} for other processes' members).
+    ``after_group(run_dirs)`` is called as each group finishes, e.g. to keep its members' results
+    elsewhere, so that losing the machine later loses only the group in progress."""
     rank, processes = process or this_process()
     names = [member_name(c, swept) for c in members]
     if len(set(names)) != len(names):
@@ -334,6 +337,8 @@ def train_population(
             records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
             for i, r in zip(indices, records, strict=True):
                 last[i] = r
+            if after_group is not None:
+                after_group([dirs[i] for i in indices])
     return last
 
 

@@ -301,7 +301,7 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
     records = tmp_path / "records"
     trained: list[list[str]] = []
 
-    def fake_train(members, out_dir, swept, resume):  # return: 10 x seed + 100 x alpha
+    def fake_train(members, out_dir, swept, resume, after_group):  # 10 x seed + 100 x alpha
         trained.append([reading_study.population.member_name(c, swept) for c in members])
         for c in members:
             d = os.path.join(out_dir, reading_study.population.member_name(c, swept))
@@ -343,6 +343,71 @@ def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeyp
     assert ma["seeds"] == 3 and sorted(ma["return"]["values"]) == [100.0, 110.0, 120.0]
     base = next(r for r in rows if r["alpha"] == 0.0)
     assert base["seeds"] == 3 and ma["paper_direction"] is None  # under 5 seeds: no verdict
+
+
+def test_reading_study_keeps_each_group_as_it_finishes_and_resumes_the_rest(tmp_path, monkeypatch):
+    """A piece cut off in its second group has kept its first group's members in the records
+    already; the same piece run again trains only the rest, resuming in the same runs folder
+    (not a new one: the folder is named by all the piece's members)."""
+    reading_study = importlib.import_module("reading_study")
+    records = tmp_path / "records"
+    calls: list[tuple[str, bool, list[str]]] = []
+    first_group: list[str] = []
+    name = reading_study.population.member_name
+
+    def write_member(d: str, c) -> None:
+        write_run(d, c.total_steps, {"return": 1.0, "feedback_norm": 1.0,
+                                     "feedforward_norm": 1.0, "energy": 1.0}, {})  # fmt: skip
+        with open(os.path.join(d, "config.json"), "w") as f:
+            json.dump(c.to_dict(), f)
+
+    def cut_after_first_group(members, out_dir, swept, resume, after_group):
+        calls.append((out_dir, resume, [name(c, swept) for c in members]))
+        os.makedirs(out_dir, exist_ok=True)
+        open(os.path.join(out_dir, "population.json"), "w").close()
+        groups = reading_study.population.groups(members)
+        first = [os.path.join(out_dir, name(members[i], swept)) for i in groups[0]]
+        for i, d in zip(groups[0], first, strict=True):
+            write_member(d, members[i])
+        first_group.extend(os.path.basename(d) for d in first)
+        after_group(first)
+        raise reading_study.runner.RunError("stopped by SIGTERM; run again to resume")
+
+    args = reading_study.argparse.Namespace(
+        scale="smoke",
+        envs=["hopper"],
+        algo="mbmpo",
+        seeds="0",
+        alphas=[1.0],
+        placements=["actor_loss", "entropy"],
+        normalize=["off"],
+        steps=None,
+        analyse_only=False,
+        runs=str(tmp_path / "runs"),
+        records=str(records),
+        overrides=[],
+    )
+    configs = reading_study.members(args)
+    assert len(reading_study.population.groups(configs)) == 2  # one program per placement
+    monkeypatch.setattr(reading_study.population, "train_population", cut_after_first_group)
+    with pytest.raises(SystemExit, match="run again to resume"):
+        reading_study.member_dirs(args, configs, "smoke")
+    kept = sorted(os.listdir(records / "reading_study" / "smoke"))
+    assert kept == sorted(first_group) and 0 < len(kept) < len(configs)
+
+    def the_rest(members, out_dir, swept, resume, after_group):
+        calls.append((out_dir, resume, [name(c, swept) for c in members]))
+        for c in members:
+            write_member(os.path.join(out_dir, name(c, swept)), c)
+        after_group([os.path.join(out_dir, name(c, swept)) for c in members])
+
+    monkeypatch.setattr(reading_study.population, "train_population", the_rest)
+    dirs = reading_study.member_dirs(args, configs, "smoke")
+    (first_dir, _, first), (again_dir, resumed, rest) = calls
+    assert again_dir == first_dir and resumed  # the same folder, resumed
+    assert sorted(rest) == sorted(set(first) - set(kept))
+    assert sorted(os.listdir(records / "reading_study" / "smoke")) == sorted(first)
+    assert sum(d.startswith(str(records)) for d in dirs) == len(kept)
 
 
 def test_reading_study_contrasts_normalization_and_placements():

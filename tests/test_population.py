@@ -254,6 +254,34 @@ def test_a_population_that_cannot_fit_is_refused_before_compiling(monkeypatch, c
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "pop").exists()
 
 
+def test_after_group_sees_each_group_once_its_training_returned(monkeypatch, tmp_path):
+    """``after_group`` gets each group's run directories, in order, right after that group's
+    training: a hook that keeps results then has only finished members to keep."""
+    trained: list[list[str]] = []
+
+    def fake_group(program, dirs, *rest):
+        trained.append(dirs)
+        return [{} for _ in dirs]
+
+    monkeypatch.setattr(population, "_train_group", fake_group)
+    swept = ["ma.alpha", "ma.placement"]
+    members = population.expand(
+        ONE_CHUNK, [0, 1], ["ma.alpha=0,1", "ma.placement=actor_loss,entropy"]
+    )
+    out = str(tmp_path / "pop")
+    seen: list[tuple[int, list[str]]] = []
+
+    def after_group(dirs: list[str]) -> None:
+        seen.append((len(trained), dirs))
+
+    population.train_population(members, out, swept, log=lambda _: None, after_group=after_group)
+    assert len(population.groups(members)) == 2 and len(seen) == 2
+    assert seen == [(g + 1, dirs) for g, dirs in enumerate(trained)]
+    assert sorted(d for _, dirs in seen for d in dirs) == sorted(
+        os.path.join(out, population.member_name(c, swept)) for c in members
+    )
+
+
 def test_a_locked_population_is_refused_before_anything_is_written(monkeypatch, tmp_path):
     """A second process on a population being trained neither creates members nor rewrites a
     resumed member's length: the lock is taken before the population's files are touched."""
