@@ -245,7 +245,10 @@ def member_dirs(args: argparse.Namespace, configs: list[Any], tag: str) -> list[
                                         after_group=keep)  # fmt: skip
         except runner.RunError as e:  # a stop or a refusal: one line; run again to resume
             raise SystemExit(f"reading_study: {e}") from None
-    if keep is not None:  # also those trained before, or found by --analyse-only
+    # Again for all: members trained before this call, found by --analyse-only, or trained by
+    # another process of a split population (after_group sees this process's share alone);
+    # re-copying a group kept a moment ago costs about 10 KB a member.
+    if keep is not None:
         keep([os.path.join(out_dir, n) for n in names])
     return [reused.get(i) or os.path.join(out_dir, n) for i, n in enumerate(every_name)]
 
