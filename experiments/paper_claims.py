@@ -29,6 +29,8 @@ from typing import Any
 
 from minatt_jax import experiment_tables as xt
 from minatt_jax import paper_numbers, runner, stats
+from minatt_jax.config import SACConfig
+from minatt_jax.min_attention import MAConfig
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
@@ -454,6 +456,26 @@ def _contrast_lines(contrasts: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def _tally_line(judged: list[dict[str, Any]]) -> str:
+    """Arms in the paper's direction out of those judged, per placement and per reward
+    normalization, beside the library's default reading: the data a default is picked from."""
+
+    def count(key: Callable[[dict], str]) -> str:
+        names = sorted({key(a) for a in judged})
+        return ", ".join(f"{n} {sum(a['paper_direction'] is True for a in judged if key(a) == n)}"
+                         f" of {sum(key(a) == n for a in judged)}" for n in names)  # fmt: skip
+
+    default = (
+        f"{MAConfig().placement} placement, reward normalization "
+        f"{'on' if SACConfig().normalize_reward else 'off'}"
+    )
+    return (
+        f"in the paper's direction by placement: {count(lambda a: a['placement'])}; by "
+        f"reward normalization: {count(lambda a: 'on' if a['normalize_reward'] else 'off')}"
+        f" (the library's default: {default})"
+    )
+
+
 def reading_study() -> list[str]:
     lines = []
     for path in sorted(glob.glob(os.path.join(RESULTS, "reading_study_*.json"))):
@@ -472,6 +494,8 @@ def reading_study() -> list[str]:
             f"direction (lower feedback and energy, return not lower): "
             f"{named or 'none'}{waiting} (`{os.path.basename(path)[:-5]}.md`)."
         )
+        if judged:
+            lines.append(f"  - {_tally_line(judged)}")
         lines += [f"  - {line}" for line in _contrast_lines(result.get("contrasts", []))]
     return lines or ["- No reading study result yet: `python experiments/reading_study.py`."]
 

@@ -474,6 +474,10 @@ def test_the_reading_study_line_names_the_env_of_each_arm_and_counts_those_waiti
     assert "2 arms with >= 5 seeds (and their baseline), 1 in the paper's direction" in line
     assert "hopper entropy alpha 1 reward norm off;" in line and "halfcheetah entropy" not in line
     assert "1 arms without a verdict yet" in line
+    # the tally counts judged arms only (the halfcheetah arm waits; baselines are no arms)
+    tally = paper_claims.reading_study()[1]
+    assert "by placement: entropy 1 of 2; by reward normalization: off 1 of 2" in tally
+    assert "the library's default: entropy placement, reward normalization off" in tally
 
 
 def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
