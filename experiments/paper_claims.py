@@ -467,11 +467,11 @@ def _tally_line(judged: list[dict[str, Any]]) -> str:
 
     default = (
         f"{MAConfig().placement} placement, reward normalization "
-        f"{'on' if SACConfig().normalize_reward else 'off'}"
+        f"{xt.on_off(SACConfig().normalize_reward)}"
     )
     return (
         f"in the paper's direction by placement: {count(lambda a: a['placement'])}; by "
-        f"reward normalization: {count(lambda a: 'on' if a['normalize_reward'] else 'off')}"
+        f"reward normalization: {count(lambda a: xt.on_off(a['normalize_reward']))}"
         f" (the library's default: {default})"
     )
 
@@ -485,7 +485,7 @@ def reading_study() -> list[str]:
         # an MA arm has the key; None there: too few seeds in the arm or its baseline
         short = [a for a in result["arms"] if a.get("paper_direction", False) is None]
         named = ", ".join(f"{a['env']} {a['placement']} alpha {a['alpha']:g} reward norm "
-                          f"{'on' if a['normalize_reward'] else 'off'}" for a in yes)  # fmt: skip
+                          f"{xt.on_off(a['normalize_reward'])}" for a in yes)  # fmt: skip
         waiting = (f"; {len(short)} arms without a verdict yet (under {xt.MIN_SEEDS} seeds in "
                    "the arm or its baseline)") if short else ""  # fmt: skip
         lines.append(

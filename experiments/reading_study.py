@@ -154,7 +154,7 @@ def contrasts(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             by_setting.setdefault((env, norm, alpha), []).append(placement)
     for (env, norm, alpha), placements in by_setting.items():
         held = {"normalize_reward": norm, "alpha": alpha}
-        fixed = f"norm {'on' if norm else 'off'}, alpha {alpha:g}"
+        fixed = f"norm {xt.on_off(norm)}, alpha {alpha:g}"
         for p, q in itertools.combinations(placements, 2):
             a, b = arms[(env, norm, p, alpha)], arms[(env, norm, q, alpha)]
             out.append(_contrast("placement", a, b, held, fixed, f"{p} - {q}"))
@@ -208,7 +208,7 @@ def markdown(rows: list[dict[str, Any]], header: str) -> str:
             r.get("paper_direction", "baseline"), "baseline"
         )
         lines.append(
-            f"| {r['env']} | {'on' if r['normalize_reward'] else 'off'} | {r['placement']} | "
+            f"| {r['env']} | {xt.on_off(r['normalize_reward'])} | {r['placement']} | "
             f"{r['alpha']:g} | {r['seeds']}{' (stored)' if r.get('stored') else ''} | "
             f"{r['step']} | " + " | ".join(cell(r[m]) for m in METRICS) + f" | {verdict} |"
         )

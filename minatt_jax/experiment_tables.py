@@ -23,6 +23,11 @@ from minatt_jax import paper_numbers, run_files, runner, stats
 MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values says little)
 
 
+def on_off(flag: bool) -> str:
+    """How the tables write a switch such as reward normalization."""
+    return "on" if flag else "off"
+
+
 def stages(total_steps: int, eval_every: int) -> list[int]:
     """The paper's stages (10K / 100K / 200K) that a run of ``total_steps`` reaches, rounded up
     to the evaluation grid, plus its last evaluation when that is not one of them."""
