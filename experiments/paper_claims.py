@@ -476,6 +476,18 @@ def _tally_line(judged: list[dict[str, Any]]) -> str:
     )
 
 
+def _half_line(judged: list[dict[str, Any]]) -> str:
+    """How often each half of the paper's direction holds on its own: the feedback norm and
+    the energy lower, the return lower (a cost), against the arm's alpha-0 baseline."""
+
+    def times(metric: str, way: str) -> int:
+        return sum(a.get(metric, {}).get("vs_baseline") == way for a in judged)
+
+    return (f"against its baseline, of {len(judged)} arms: feedback_norm lower in "
+            f"{times('feedback_norm', 'lower')}, energy lower in {times('energy', 'lower')}, "
+            f"return lower in {times('return', 'lower')}")  # fmt: skip
+
+
 def reading_study() -> list[str]:
     lines = []
     for path in sorted(glob.glob(os.path.join(RESULTS, "reading_study_*.json"))):
@@ -496,6 +508,7 @@ def reading_study() -> list[str]:
         )
         if judged:
             lines.append(f"  - {_tally_line(judged)}")
+            lines.append(f"  - {_half_line(judged)}")
         lines += [f"  - {line}" for line in _contrast_lines(result.get("contrasts", []))]
     return lines or ["- No reading study result yet: `python experiments/reading_study.py`."]
 

@@ -463,8 +463,14 @@ def test_the_reading_study_line_names_the_env_of_each_arm_and_counts_those_waiti
 
     def arm(env, alpha, direction=None):
         verdict = {} if alpha == 0 else {"paper_direction": direction}
+        # the hopper arm at 5 cuts feedback alone; the one at 1 cuts feedback and energy
+        halves = {
+            "feedback_norm": {"vs_baseline": "lower" if alpha else None},
+            "energy": {"vs_baseline": "lower" if direction else "unresolved"},
+            "return": {"vs_baseline": "lower" if alpha == 5.0 else "unresolved"},
+        }
         return {"env": env, "normalize_reward": False, "placement": "entropy", "alpha": alpha,
-                **verdict}  # fmt: skip
+                **verdict, **halves}  # fmt: skip
 
     arms = [arm("hopper", 0.0), arm("hopper", 1.0, True), arm("hopper", 5.0, False),
             arm("halfcheetah", 0.0), arm("halfcheetah", 1.0)]  # fmt: skip
@@ -478,6 +484,9 @@ def test_the_reading_study_line_names_the_env_of_each_arm_and_counts_those_waiti
     tally = paper_claims.reading_study()[1]
     assert "by placement: entropy 1 of 2; by reward normalization: off 1 of 2" in tally
     assert "the library's default: entropy placement, reward normalization off" in tally
+    halves = paper_claims.reading_study()[2]
+    assert halves == ("  - against its baseline, of 2 arms: feedback_norm lower in 2, energy lower "
+                      "in 1, return lower in 1")  # fmt: skip
 
 
 def test_a_bad_override_in_the_reading_study_exits_2_with_one_line(monkeypatch, capsys):
