@@ -476,15 +476,16 @@ def test_the_reading_study_line_names_the_env_of_each_arm_and_counts_those_waiti
             arm("halfcheetah", 0.0), arm("halfcheetah", 1.0)]  # fmt: skip
     with open(tmp_path / "reading_study_t.json", "w") as f:
         json.dump({"command": "python x", "device": "cpu", "arms": arms, "contrasts": []}, f)
-    line = paper_claims.reading_study()[0]
+    lines = paper_claims.reading_study()
+    line = lines[0]
     assert "2 arms with >= 5 seeds (and their baseline), 1 in the paper's direction" in line
     assert "hopper entropy alpha 1 reward norm off;" in line and "halfcheetah entropy" not in line
     assert "1 arms without a verdict yet" in line
     # the tally counts judged arms only (the halfcheetah arm waits; baselines are no arms)
-    tally = paper_claims.reading_study()[1]
+    tally = lines[1]
     assert "by placement: entropy 1 of 2; by reward normalization: off 1 of 2" in tally
     assert "the library's default: entropy placement, reward normalization off" in tally
-    halves = paper_claims.reading_study()[2]
+    halves = lines[2]
     assert halves == ("  - against its baseline, of 2 arms: feedback_norm lower in 2, energy lower "
                       "in 1, return lower in 1")  # fmt: skip
 
