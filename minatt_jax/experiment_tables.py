@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -281,8 +282,7 @@ def reused_runs(args: argparse.Namespace, configs: list[Any],
     found = {}
     for i, c in enumerate(configs):
         for d, stored in candidates:
-            if (runner.with_stored_schedule(c, stored).to_dict() == stored.to_dict()
-                    and all(record_at(d, s) for s in steps)
+            if (same_member(c, stored) and all(record_at(d, s) for s in steps)
                     and (complete is None or complete(d))):  # fmt: skip
                 found[i] = d
                 break
@@ -333,10 +333,37 @@ def piece_folder(out_dir: str, names: list[str]) -> str:
     return f"{out_dir}_{hashlib.sha1(' '.join(names).encode()).hexdigest()[:8]}"
 
 
+def same_member(config: Any, stored: Any) -> bool:
+    """Whether a run stored with config ``stored`` is the member ``config``: the same settings,
+    its length and chunk length aside."""
+    return runner.with_stored_schedule(config, stored).to_dict() == stored.to_dict()
+
+
+def record_folder(target: str, run_dir: str) -> str:
+    """Where ``run_dir``'s record goes under ``target``: the folder of the run's name that
+    already holds this member's record, else ``<run name>`` when free, else ``<run name>_<digest
+    of its settings>``. Why: two studies name members alike (meta_training's HalfCheetah
+    baseline with and without ``--set buffer_size=10000``); one must not overwrite the other's
+    record, which ``reused_runs`` finds by its settings, not its name."""
+    name, config = os.path.basename(run_dir), runner.load_config(run_dir)
+    held = sorted(f for f in (os.listdir(target) if os.path.isdir(target) else [])
+                  if f == name or f.startswith(f"{name}_"))  # fmt: skip
+    for folder in held:
+        path = os.path.join(target, folder)
+        if os.path.isfile(os.path.join(path, "config.json")) and same_member(
+            config, runner.load_config(path)
+        ):
+            return path
+    if name not in held:
+        return os.path.join(target, name)
+    digest = hashlib.sha1(json.dumps(config.to_dict(), sort_keys=True).encode()).hexdigest()
+    return os.path.join(target, f"{name}_{digest[:8]}")
+
+
 def keep_records(dirs: list[str], steps: list[int], target: str, name: str) -> None:
     """Copies the result files of the runs in ``dirs`` that reached every stage in ``steps``
-    to ``target/<run name>`` (``run_files.copy_results``) and says how many."""
+    to their ``record_folder`` under ``target`` (``run_files.copy_results``) and says how many."""
     done = [d for d in dirs if all(record_at(d, s) for s in steps)]
     for d in done:
-        run_files.copy_results(d, os.path.join(target, os.path.basename(d)))
+        run_files.copy_results(d, record_folder(target, d))
     print(f"{name}: results of {len(done)} members kept in {target}", flush=True)

@@ -293,6 +293,49 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     assert "no analyze report for hopper: 9 members" in capsys.readouterr().out
 
 
+def test_records_of_members_named_alike_but_set_differently_are_both_kept(tmp_path):
+    """Two studies' members with one name but other settings (``--set buffer_size=10000`` or
+    not) keep two records, each found again by its settings; the same member kept again (at
+    another chunk length) replaces its own record, and a third setting gets a third folder."""
+    parser = meta_training.argparse.ArgumentParser()
+    meta_training.xt.add_study_arguments(parser, envs=["hopper"], runs=str(tmp_path),
+                                         several_alphas=True)  # fmt: skip
+
+    def member(*sets: str, chunk: int = 1000):
+        sets = (*sets, f"eval_every={chunk}")
+        args = parser.parse_args(["--scale", "smoke", "--steps", "10000", "--seeds", "0",
+                                  *[w for s in sets for w in ("--set", s)]])  # fmt: skip
+        return args, meta_training.members(args)[1]  # the MB-MPO baseline
+
+    def kept_run(config, where: str, value: float) -> str:
+        d = tmp_path / where / meta_training.population.member_name(config, meta_training.SWEPT)
+        write_run(str(d), 10_000, {"return": value, "feedback_norm": 1.0,
+                                   "feedforward_norm": 1.0, "energy": 1.0}, {})  # fmt: skip
+        (d / "config.json").write_text(json.dumps(config.to_dict()))
+        return str(d)
+
+    target = str(tmp_path / "records" / "meta_training" / "smoke_10k")
+    _, small = member("buffer_size=10000")
+    args, default = member()
+    keep = meta_training.xt.keep_records
+    keep([kept_run(small, "a", 1.0)], [10_000], target, "meta_training")
+    keep([kept_run(default, "b", 2.0)], [10_000], target, "meta_training")
+    names = sorted(os.listdir(target))
+    assert len(names) == 2 and names[1].startswith(f"{names[0]}_")
+    args.records = str(tmp_path / "records")
+    for config, value in ((small, 1.0), (default, 2.0)):
+        (found,) = meta_training.xt.reused_runs(args, [config]).values()
+        assert meta_training.xt.record_at(found, 10_000)["return"] == value
+    _, rechunked = member(chunk=2000)
+    keep([kept_run(rechunked, "c", 3.0)], [10_000], target, "meta_training")
+    assert sorted(os.listdir(target)) == names
+    (found,) = meta_training.xt.reused_runs(args, [default]).values()
+    assert meta_training.xt.record_at(found, 10_000)["return"] == 3.0
+    _, third = member("buffer_size=20000")
+    keep([kept_run(third, "d", 4.0)], [10_000], target, "meta_training")
+    assert len(os.listdir(target)) == 3
+
+
 def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeypatch, capsys):
     """The reading study's ``--records``: a first piece (seeds 0-1) keeps its finished
     members; a second call for seeds 0-2 on a machine without those runs trains seed 2 alone,
