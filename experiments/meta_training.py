@@ -32,8 +32,9 @@ A grid longer than a machine keeps its runs: ``--records experiments/records`` c
 member's results (config.json, metrics.jsonl, meta-tests; kilobytes) there once it reached
 every stage, and the next call reads members kept there instead of training them. So
 ``--seeds 0-1`` on one machine, ``--seeds 2-4`` on another (commit the records between) and
-``--seeds 0-4`` tabulates all ten without training; the analyze report needs checkpoints and
-is skipped for tables that read records.
+``--seeds 0-4`` tabulates all ten without training; the analyze report needs checkpoints: it
+reads them in the pieces' runs folders on this machine, and is skipped where some member was
+trained elsewhere.
 """
 
 from __future__ import annotations
@@ -251,12 +252,14 @@ def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str,
                   suffix: str = "", reused: dict[int, str] | None = None) -> None:  # fmt: skip
     """``minatt-jax analyze`` on every member of each environment (K(t)x + v(t), heatmaps,
     failure grid, maturation at the stages); its figures and tables are copied beside the
-    tables (``report.html`` stays under the runs). Skipped, said once, where members were
-    read from records (no checkpoints to analyze)."""
+    tables (``report.html`` stays under the runs). A member read from records is analyzed in
+    the piece folder that trained it on this machine (``checkpointed_run``); skipped, said
+    once, where some member has no checkpoint here."""
     from minatt_jax.cli import main as cli
 
     for env in dict.fromkeys(c.env for c in configs):
-        dirs = [d for arm in xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused).values()
+        dirs = [xt.checkpointed_run(d, os.path.dirname(out_dir), steps[-1])
+                for arm in xt.dirs_by_arm(configs, out_dir, SWEPT, env, arm_of, reused).values()
                 for d in arm]  # fmt: skip
         if missing := [d for d in dirs if checkpoint.latest_step(d) is None]:
             print(f"meta_training: no analyze report for {env}: {len(missing)} members have no "

@@ -108,7 +108,12 @@ def make_failure_grid(
         vxs = jnp.repeat(vx, ny * rollouts)
         ws = jnp.tile(jnp.repeat(w, rollouts), nx)
         keys = jax.random.split(key, nx * ny * rollouts)
-        fails = jax.vmap(episode, in_axes=(None, 0, 0, 0, None))(params, vxs, ws, keys, task)
+        # One cell's rollouts at a time, not all nx * ny * rollouts in one batch: under jaxlib
+        # 0.10.2 MJX's Newton solver on a batch of 1620 episodes hung in the LAPACK Cholesky
+        # kernel (gdb: ParallelBatchMap waiting on the XLA pool its callers occupy), a walker2d
+        # report with two busy cores; cell-sized batches finish.
+        fails = jax.lax.map(lambda a: episode(params, *a, task), (vxs, ws, keys),
+                            batch_size=rollouts)  # fmt: skip
         return jnp.mean(fails.reshape(nx, ny, rollouts), axis=-1)
 
     return jax.jit(grid)

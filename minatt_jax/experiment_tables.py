@@ -10,6 +10,7 @@ interval (``minatt_jax.stats``).
 from __future__ import annotations
 
 import argparse
+import glob
 import hashlib
 import json
 import os
@@ -358,6 +359,27 @@ def record_folder(target: str, run_dir: str) -> str:
         return os.path.join(target, name)
     digest = hashlib.sha1(json.dumps(config.to_dict(), sort_keys=True).encode()).hexdigest()
     return os.path.join(target, f"{name}_{digest[:8]}")
+
+
+def checkpointed_run(run_dir: str, runs: str, step: int) -> str:
+    """``run_dir`` when it holds a checkpoint at ``step`` or later, else a run of the same member
+    (``same_member``) that does in a folder under ``runs`` (``runs/<piece>/<run>``): a record
+    keeps no checkpoints, but the pieces that trained it on this machine do, and the analyze
+    report needs the policies. ``run_dir`` again when there is none."""
+    from minatt_jax import checkpoint
+
+    def at_step(d: str) -> bool:
+        latest = checkpoint.latest_step(d)
+        return latest is not None and latest >= step
+
+    if at_step(run_dir) or not os.path.isdir(runs):
+        return run_dir
+    config = runner.load_config(run_dir)
+    for path in sorted(glob.glob(os.path.join(glob.escape(runs), "*", "*", "config.json"))):
+        d = os.path.dirname(path)
+        if same_member(config, runner.load_config(d)) and at_step(d):
+            return d
+    return run_dir
 
 
 def keep_records(dirs: list[str], steps: list[int], target: str, name: str) -> None:

@@ -293,47 +293,72 @@ def test_records_let_a_grid_be_finished_in_pieces_on_other_machines(tmp_path, ca
     assert "no analyze report for hopper: 9 members" in capsys.readouterr().out
 
 
+def smoke_baseline(tmp_path, *sets: str, chunk: int = 1000, seed: int = 0):
+    """(args, config) of meta_training's MB-MPO baseline on hopper, 10K smoke steps, with
+    ``--set`` for each of ``sets`` and the chunk length ``chunk``."""
+    parser = meta_training.argparse.ArgumentParser()
+    meta_training.xt.add_study_arguments(parser, envs=["hopper"], runs=str(tmp_path),
+                                         several_alphas=True)  # fmt: skip
+    sets = (*sets, f"eval_every={chunk}")
+    args = parser.parse_args(["--scale", "smoke", "--steps", "10000", "--seeds", str(seed),
+                              *[w for s in sets for w in ("--set", s)]])  # fmt: skip
+    return args, meta_training.members(args)[1]
+
+
+def run_of(config, parent, value: float = 0.0) -> str:
+    """A finished run of ``config`` under ``parent`` (its return ``value``), as a record holds."""
+    d = parent / meta_training.population.member_name(config, meta_training.SWEPT)
+    write_run(str(d), 10_000, {"return": value, "feedback_norm": 1.0, "feedforward_norm": 1.0,
+                               "energy": 1.0}, {})  # fmt: skip
+    (d / "config.json").write_text(json.dumps(config.to_dict()))
+    return str(d)
+
+
 def test_records_of_members_named_alike_but_set_differently_are_both_kept(tmp_path):
     """Two studies' members with one name but other settings (``--set buffer_size=10000`` or
     not) keep two records, each found again by its settings; the same member kept again (at
     another chunk length) replaces its own record, and a third setting gets a third folder."""
-    parser = meta_training.argparse.ArgumentParser()
-    meta_training.xt.add_study_arguments(parser, envs=["hopper"], runs=str(tmp_path),
-                                         several_alphas=True)  # fmt: skip
-
-    def member(*sets: str, chunk: int = 1000):
-        sets = (*sets, f"eval_every={chunk}")
-        args = parser.parse_args(["--scale", "smoke", "--steps", "10000", "--seeds", "0",
-                                  *[w for s in sets for w in ("--set", s)]])  # fmt: skip
-        return args, meta_training.members(args)[1]  # the MB-MPO baseline
-
-    def kept_run(config, where: str, value: float) -> str:
-        d = tmp_path / where / meta_training.population.member_name(config, meta_training.SWEPT)
-        write_run(str(d), 10_000, {"return": value, "feedback_norm": 1.0,
-                                   "feedforward_norm": 1.0, "energy": 1.0}, {})  # fmt: skip
-        (d / "config.json").write_text(json.dumps(config.to_dict()))
-        return str(d)
-
     target = str(tmp_path / "records" / "meta_training" / "smoke_10k")
-    _, small = member("buffer_size=10000")
-    args, default = member()
+    _, small = smoke_baseline(tmp_path, "buffer_size=10000")
+    args, default = smoke_baseline(tmp_path)
     keep = meta_training.xt.keep_records
-    keep([kept_run(small, "a", 1.0)], [10_000], target, "meta_training")
-    keep([kept_run(default, "b", 2.0)], [10_000], target, "meta_training")
+    keep([run_of(small, tmp_path / "a", 1.0)], [10_000], target, "meta_training")
+    keep([run_of(default, tmp_path / "b", 2.0)], [10_000], target, "meta_training")
     names = sorted(os.listdir(target))
     assert len(names) == 2 and names[1].startswith(f"{names[0]}_")
     args.records = str(tmp_path / "records")
     for config, value in ((small, 1.0), (default, 2.0)):
         (found,) = meta_training.xt.reused_runs(args, [config]).values()
         assert meta_training.xt.record_at(found, 10_000)["return"] == value
-    _, rechunked = member(chunk=2000)
-    keep([kept_run(rechunked, "c", 3.0)], [10_000], target, "meta_training")
+    _, rechunked = smoke_baseline(tmp_path, chunk=2000)
+    keep([run_of(rechunked, tmp_path / "c", 3.0)], [10_000], target, "meta_training")
     assert sorted(os.listdir(target)) == names
     (found,) = meta_training.xt.reused_runs(args, [default]).values()
     assert meta_training.xt.record_at(found, 10_000)["return"] == 3.0
-    _, third = member("buffer_size=20000")
-    keep([kept_run(third, "d", 4.0)], [10_000], target, "meta_training")
+    _, third = smoke_baseline(tmp_path, "buffer_size=20000")
+    keep([run_of(third, tmp_path / "d", 4.0)], [10_000], target, "meta_training")
     assert len(os.listdir(target)) == 3
+
+
+def test_a_recorded_member_is_analyzed_in_the_piece_folder_that_trained_it(tmp_path, monkeypatch):
+    """The analyze report of a table read from records: each record (no checkpoints) is
+    replaced by the run of the same member in a piece folder on this machine, at a chunk length
+    of its own; not by one of another seed or setting, nor one whose checkpoint is short of the
+    stage; the record itself where there is none."""
+    steps = {}  # run directory -> its (fake) latest checkpoint step
+    monkeypatch.setattr("minatt_jax.checkpoint.latest_step", lambda d: steps.get(d))
+    _, member = smoke_baseline(tmp_path)
+    record = run_of(member, tmp_path / "records")
+    runs = tmp_path / "runs"
+    pieces = {"a": (smoke_baseline(tmp_path, seed=1)[1], 10_000),
+              "b": (smoke_baseline(tmp_path, "buffer_size=20000")[1], 10_000),
+              "c": (member, 5_000), "d": (smoke_baseline(tmp_path, chunk=2000)[1], 10_000)}
+    for piece, (config, step) in pieces.items():
+        steps[run_of(config, runs / piece)] = step
+    found = meta_training.xt.checkpointed_run
+    assert found(record, str(runs), 10_000) == str(runs / "d" / os.path.basename(record))
+    assert found(record, str(runs), 20_000) == record
+    assert found(record, str(tmp_path / "elsewhere"), 10_000) == record
 
 
 def test_reading_study_pieces_read_the_members_kept_in_records(tmp_path, monkeypatch, capsys):
