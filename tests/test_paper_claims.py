@@ -350,9 +350,12 @@ def test_a_recorded_member_is_analyzed_in_the_piece_folder_that_trained_it(tmp_p
     _, member = smoke_baseline(tmp_path)
     record = run_of(member, tmp_path / "records")
     runs = tmp_path / "runs"
-    pieces = {"a": (smoke_baseline(tmp_path, seed=1)[1], 10_000),
-              "b": (smoke_baseline(tmp_path, "buffer_size=20000")[1], 10_000),
-              "c": (member, 5_000), "d": (smoke_baseline(tmp_path, chunk=2000)[1], 10_000)}
+    pieces = {
+        "a": (smoke_baseline(tmp_path, seed=1)[1], 10_000),
+        "b": (smoke_baseline(tmp_path, "buffer_size=20000")[1], 10_000),
+        "c": (member, 5_000),
+        "d": (smoke_baseline(tmp_path, chunk=2000)[1], 10_000),
+    }
     for piece, (config, step) in pieces.items():
         steps[run_of(config, runs / piece)] = step
     found = meta_training.xt.checkpointed_run
