@@ -362,10 +362,12 @@ def record_folder(target: str, run_dir: str) -> str:
 
 
 def checkpointed_run(run_dir: str, runs: str, step: int) -> str:
-    """``run_dir`` when it holds a checkpoint at ``step`` or later, else a run of the same member
-    (``same_member``) that does in a folder under ``runs`` (``runs/<piece>/<run>``): a record
-    keeps no checkpoints, but the pieces that trained it on this machine do, and the analyze
-    report needs the policies. ``run_dir`` again when there is none."""
+    """``run_dir`` when it holds a checkpoint at ``step`` or later, else the run that made its
+    record: the same member (``same_member``) with the same evaluation at ``step`` and such a
+    checkpoint, in a folder under ``runs`` (``runs/<piece>/<run>``). A record keeps no
+    checkpoints, but the piece that trained it on this machine does, and the analyze report
+    needs the policies; another draw of the member (a retrained seed) is not it. ``run_dir``
+    again when there is none."""
     from minatt_jax import checkpoint
 
     def at_step(d: str) -> bool:
@@ -374,10 +376,11 @@ def checkpointed_run(run_dir: str, runs: str, step: int) -> str:
 
     if at_step(run_dir) or not os.path.isdir(runs):
         return run_dir
-    config = runner.load_config(run_dir)
+    config, evaluation = runner.load_config(run_dir), record_at(run_dir, step)
     for path in sorted(glob.glob(os.path.join(glob.escape(runs), "*", "*", "config.json"))):
         d = os.path.dirname(path)
-        if same_member(config, runner.load_config(d)) and at_step(d):
+        if (same_member(config, runner.load_config(d)) and record_at(d, step) == evaluation
+                and at_step(d)):  # fmt: skip
             return d
     return run_dir
 

@@ -343,8 +343,8 @@ def test_records_of_members_named_alike_but_set_differently_are_both_kept(tmp_pa
 def test_a_recorded_member_is_analyzed_in_the_piece_folder_that_trained_it(tmp_path, monkeypatch):
     """The analyze report of a table read from records: each record (no checkpoints) is
     replaced by the run of the same member in a piece folder on this machine, at a chunk length
-    of its own; not by one of another seed or setting, nor one whose checkpoint is short of the
-    stage; the record itself where there is none."""
+    of its own; not by one of another seed or setting, another draw (other evaluations), nor one
+    whose checkpoint is short of the stage; the record itself where there is none."""
     steps = {}  # run directory -> its (fake) latest checkpoint step
     monkeypatch.setattr("minatt_jax.checkpoint.latest_step", lambda d: steps.get(d))
     _, member = smoke_baseline(tmp_path)
@@ -352,12 +352,13 @@ def test_a_recorded_member_is_analyzed_in_the_piece_folder_that_trained_it(tmp_p
     runs = tmp_path / "runs"
     pieces = {
         "a": (smoke_baseline(tmp_path, seed=1)[1], 10_000),
+        "a_other_draw": (member, 10_000),
         "b": (smoke_baseline(tmp_path, "buffer_size=20000")[1], 10_000),
         "c": (member, 5_000),
         "d": (smoke_baseline(tmp_path, chunk=2000)[1], 10_000),
     }
     for piece, (config, step) in pieces.items():
-        steps[run_of(config, runs / piece)] = step
+        steps[run_of(config, runs / piece, 5.0 if piece == "a_other_draw" else 0.0)] = step
     found = meta_training.xt.checkpointed_run
     assert found(record, str(runs), 10_000) == str(runs / "d" / os.path.basename(record))
     assert found(record, str(runs), 20_000) == record
