@@ -30,7 +30,7 @@ import time
 import jax
 
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import make_train
+from minatt_jax.training import hyper_of, make_train
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -44,12 +44,12 @@ def build(size: str, alpha: float, updates: int, chunk_steps: int):
         buffer_size=max(4096, 2 * preset.dreamer.batch_length * preset.num_envs),
     ))  # fmt: skip
     trainer = make_train(config)
-    agent = trainer.parts["agent"]
-    state = trainer.init(jax.random.PRNGKey(0))
+    agent = trainer.agent.parts["agent"]
+    state = trainer.init(jax.random.PRNGKey(0), hyper_of(config))
     d = config.dreamer
 
     # A replay filled with one chunk of random-policy steps (enough for whole sequences).
-    filled, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(1)))
+    filled, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(1), hyper_of(config)))
 
     @jax.jit
     def run_updates(agent_state, key):
@@ -95,7 +95,7 @@ def main() -> None:
                     timed(run_updates, agent_state, jax.random.PRNGKey(1)) / args.updates
                 )
                 # Two chunks fill the rings past one sequence; the third updates throughout.
-                state = chunk(chunk(trainer.init(jax.random.PRNGKey(2)))[0])[0]
+                state = chunk(chunk(trainer.init(jax.random.PRNGKey(2), hyper_of(config)))[0])[0]
                 times[label]["chunk"].append(timed(chunk, state))
         base = statistics.median(times["MA off"]["update"])
         for label, (config, _, _, trainer, _) in built.items():

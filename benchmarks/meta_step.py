@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from minatt_jax.config import PRESETS, TrainConfig, resolve, with_overrides
-from minatt_jax.training import make_train
+from minatt_jax.training import hyper_of, make_train
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results", "meta_step.json")
 
@@ -77,7 +77,7 @@ def measure_loop(config: TrainConfig, steps: int, breakdown: bool = False) -> di
     """Compile time and env steps/s of ``steps`` loop steps after the warm-up."""
     config = resolve(dataclasses.replace(config, eval_every=steps))
     trainer = make_train(config)
-    state = trainer.init(jax.random.PRNGKey(0))
+    state = trainer.init(jax.random.PRNGKey(0), hyper_of(trainer.config))
     t = time.perf_counter()
     chunk = trainer.train_chunk.lower(state).compile()
     compile_s = time.perf_counter() - t
@@ -100,7 +100,7 @@ def measure_loop(config: TrainConfig, steps: int, breakdown: bool = False) -> di
     }
     if breakdown:
         key = jax.random.PRNGKey(1)
-        parts = trainer.parts
+        parts = trainer.agent.parts
         fit_s = _timed_state_fn(parts["refit"], state, key)
         imagine_s = _timed_state_fn(parts["imagine"], state, key)
         update_s = _timed_state_fn(parts["agent_update"], state, key, repeat=20)

@@ -53,6 +53,12 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
 ENV_NAMES = tuple(ENVIRONMENTS)
 
 
+def register(name: str, env_class: type[LocomotionEnv]) -> None:
+    """Adds a user's environment under ``name`` (``make(name)``, ``--env name``): a
+    ``LocomotionEnv`` subclass built as ``env_class(physics)`` (see ``docs/extending.md``)."""
+    ENVIRONMENTS[name] = env_class
+
+
 class UnknownNameError(ValueError):
     """An environment, task set or physics preset name that does not exist."""
 

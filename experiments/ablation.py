@@ -22,8 +22,10 @@ import argparse
 import os
 from typing import Any
 
-from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers, population
+import paper_numbers
+import study as xt
+
+from minatt_jax import population
 from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -17,8 +17,8 @@ import itertools
 import os
 
 import numpy as np
+import study as xt
 
-from minatt_jax import experiment_tables as xt
 from minatt_jax import meta_test, plots, runner
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -20,9 +20,10 @@ import os
 from typing import Any
 
 import numpy as np
+import paper_numbers
+import study as xt
 
-from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers, plots, population
+from minatt_jax import plots, population
 from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

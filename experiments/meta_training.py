@@ -26,7 +26,7 @@ each alpha's table and curves carry ``_alpha<a>`` (SAC and MB-MPO shared by all 
 population lives under ``<runs>/<env>/alpha<a>_<b>/<tag>``. The tables: per stage and
 arm, mean +- std over seeds [95% bootstrap interval of the mean], the difference from MB-MPO
 (direction when its interval excludes zero), and the paper's numbers beside ours
-(``minatt_jax.paper_numbers``).
+(``paper_numbers``).
 
 A grid longer than a machine keeps its runs: ``--records experiments/records`` copies each
 member's results (config.json, metrics.jsonl, meta-tests; kilobytes) there once it reached
@@ -50,9 +50,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import paper_numbers
+import study as xt
 
-from minatt_jax import checkpoint, meta_test, paper_numbers, plots, population, runner
-from minatt_jax import experiment_tables as xt
+from minatt_jax import checkpoint, meta_test, plots, population, runner
 from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -27,8 +27,11 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers, runner, stats
+import paper_numbers
+import stats
+import study as xt
+
+from minatt_jax import runner
 from minatt_jax.config import SACConfig
 from minatt_jax.min_attention import MAConfig
 

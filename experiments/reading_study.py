@@ -14,7 +14,7 @@ normalization, its seeds and alphas vmapped in it), so running the command again
 
 Per arm (the final deterministic evaluation of each seed): return, feedback, feedforward and
 energy, mean +- std with 95% bootstrap intervals, and the difference from the baseline with its
-interval (``minatt_jax.stats``). An arm goes the **paper's direction** when feedback and energy
+interval (``stats``). An arm goes the **paper's direction** when feedback and energy
 are lower (intervals below zero) and the return is not lower (its interval reaches zero or
 above); with fewer than 5 seeds in an arm or its baseline there is no verdict. Contrasts answer
 the study's other questions with intervals: normalization on minus off for each arm (the
@@ -38,8 +38,10 @@ import json
 import os
 from typing import Any
 
-from minatt_jax import experiment_tables as xt
-from minatt_jax import population, runner, stats
+import stats
+import study as xt
+
+from minatt_jax import population, runner
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -208,13 +208,18 @@ def _step(run_dir: str, step: int | None) -> int:
     return step
 
 
-# Items added to the train state after checkpoints were written without them, and the value
-# they restore as there: the MA term weights (a program computed only its run's mode's terms).
-ADDED_LATER = {"ma_terms": 1.0}
+# Checkpoints written before the agents' swept values moved into one ``hyper`` subtree hold
+# them under these names, and no ``hyper`` items: those restore as the template's values, which
+# every caller sets from the run's configuration (the run's own values, never a default).
+LEGACY_ITEMS = ("ma_alpha", "ma_terms", "alpha", "inner_lr")
 
 
 def _added_later(name: str) -> bool:
-    return name.rsplit("/", 1)[-1] in ADDED_LATER
+    return "/hyper/" in f"/{name}"
+
+
+def _legacy(name: str) -> bool:
+    return name.rsplit("/", 1)[-1] in LEGACY_ITEMS
 
 
 def _check_items(
@@ -225,7 +230,8 @@ def _check_items(
         stored = {k: v for k, v in stored.items() if k == prefix or k.startswith(prefix + "/")}
     wanted = {k: v for k, v in wanted.items() if np.size(v) > 0}
     missing = sorted(k for k in set(wanted) - set(stored) if not _added_later(k))
-    extra = sorted(set(stored) - set(wanted))
+    hyper_stored = any(_added_later(k) for k in stored)
+    extra = sorted(k for k in set(stored) - set(wanted) if hyper_stored or not _legacy(k))
     shapes = sorted(k for k in set(wanted) & set(stored)
                     if list(np.shape(wanted[k])) != stored[k]["shape"])  # fmt: skip
     problems = []
@@ -276,9 +282,7 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
     def leaf_value(name: str, template_leaf: Any) -> Any:
         if name in values:
             return jax.numpy.asarray(values[name])
-        if _added_later(name) and name not in stored:
-            return jax.numpy.full_like(template_leaf, ADDED_LATER[name.rsplit("/", 1)[-1]])
-        return template_leaf  # an empty item
+        return jax.numpy.asarray(template_leaf)  # an empty item, or a hyper value (above)
 
     out = {}
     for prefix, template in like.items():
@@ -292,7 +296,7 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
 
 def restore(run_dir: str, like: Any, step: int | None = None) -> tuple[int, Any]:
     """Restores checkpoint ``step`` (default: the latest) whole, into the structure of ``like``
-    (a train state): every item must match (items ``ADDED_LATER`` may be absent)."""
+    (a train state): every item must match (``hyper`` items may be absent: ``LEGACY_ITEMS``)."""
     step = _step(run_dir, step)
     stored = describe(run_dir, step)["items"]
     _check_items(run_dir, step, stored, named_leaves(like), "")
@@ -374,7 +378,7 @@ class Policy(NamedTuple):
     agent: Any  # the algorithm's agent functions (SAC: control, sample, ...; DreamerAgent)
     actor_params: Any  # the policy's parameters (DreamerV3: world model and actor)
     normalizer: Any
-    family: Any  # policies.PolicyFamily: how these parameters act
+    family: Any  # agents.base.PolicyFamily: how these parameters act
 
     def control(self, obs: jax.Array) -> jax.Array:
         """The deterministic control u(obs) (observation normalization applied) of a
@@ -398,7 +402,7 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
     trainer: from the step's policy snapshot, or from the checkpoint's items that hold the policy
     alone when there is no snapshot. No replay or model buffer is allocated."""
     import minatt_jax.envs as envs
-    from minatt_jax.policies import family
+    from minatt_jax.agents import registry
 
     config = run_files.load_config(run_dir)
     if step is None:
@@ -409,7 +413,7 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
                 raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
             step = snapshots[-1]
     env = envs.make(config.env, config.physics)
-    kind = family(config, env)
+    kind = registry.get(config.algo).policy(config, env)
     if step in snapshot_steps(run_dir):
         params, norm = load_policy_snapshot(run_dir, step, kind.like)
     else:

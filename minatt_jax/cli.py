@@ -62,6 +62,7 @@ _non_negative_float = _number(float, 0.0, False, "a finite number >= 0")
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser for all subcommands."""
+    from minatt_jax.agents import registry
     from minatt_jax.envs import ENV_NAMES, PHYSICS_PRESETS, TASK_SET_NAMES
 
     parser = _Parser(prog="minatt-jax", description=__doc__.splitlines()[0])
@@ -95,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p_train = sub.add_parser("train", help="train an agent (writes a run directory)")
     p_train.add_argument("--env", default=None, help=f"one of {', '.join(ENV_NAMES)}")
-    p_train.add_argument("--algo", default=None, help="sac (default), mbpo or mbmpo")
+    p_train.add_argument("--algo", default=None,
+                         help=f"one of {', '.join(registry.names())} (default sac)")  # fmt: skip
     p_train.add_argument("--preset", default=None, choices=tuple(PRESETS), help="default: cpu")
     p_train.add_argument("--alpha", type=_non_negative_float, default=None, help="MA weight")
     p_train.add_argument("--ma-mode", choices=MODES, default=None)
@@ -111,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_train.add_argument(
         "--variant",
         default=None,
-        help="task set to train on (default: train for mbmpo, else nominal)",
+        help="task set to train on (default: the agent's: train for mbmpo, else nominal)",
     )
     p_train.add_argument(
         "--task",

@@ -7,10 +7,11 @@ one place that turns a preset plus overrides into a run's configuration.
   rule. The CLI, the runner, experiments and benchmarks all call it; ``make_train`` refuses an
   unresolved configuration.
 
-Derived defaults: ``task_set`` is "train" for mbmpo (meta-training collects data across the
-training tasks), "nominal" otherwise; ``updates_per_step`` is 1 for sac and 2 (the paper's
-appendix) for mbpo and mbmpo; ``model.num_elites`` is min(5, ensemble_size); ``ma.temporal_dt`` is
-1 update for the parameter reading and the environment's dt for the rollout reading.
+Derived defaults: ``task_set`` and ``updates_per_step`` are the agent's (its registry entry's
+``defaults``: mbmpo meta-trains on the "train" tasks, the model-based agents make 2 updates per
+env step as in the paper's appendix); ``model.num_elites`` is min(5, ensemble_size);
+``ma.temporal_dt`` is 1 update for the parameter reading and the environment's dt for the rollout
+reading.
 """
 
 from __future__ import annotations
@@ -21,11 +22,10 @@ import math
 import typing
 from typing import Any
 
+from minatt_jax.agents import registry
 from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dynamics_ensemble import ModelConfig
 from minatt_jax.min_attention import CAPSConfig, MAConfig
-
-ALGOS = ("sac", "mbpo", "mbmpo", "dreamer")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,13 +129,13 @@ class TrainConfig:
     env: str = "hopper"
     algo: str = "sac"
     preset: str = "cpu"
-    task_set: str | None = None  # None: "train" for mbmpo, else "nominal"
+    task_set: str | None = None  # None: the agent's default ("train" for mbmpo, else "nominal")
     tasks: tuple[str, ...] = ()  # custom tasks ("mass=1.25,slope=0.1"); replace task_set if given
     physics: str | None = None  # None: the environment's default (fast; gym for cheetah_run)
     seed: int = 0
     total_steps: int = 50_000
     num_envs: int = 1
-    updates_per_step: int | None = None  # agent updates per env step; None: sac 1, mbpo/mbmpo 2
+    updates_per_step: int | None = None  # agent updates per env step; None: the agent's default
     warmup_steps: int = 5_000
     buffer_size: int = 1_000_000
     max_episode_steps: int = 1000
@@ -163,14 +163,8 @@ class TrainConfig:
             raise ValueError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
         if self.noise not in ("gaussian", "ou"):
             raise ValueError(f"noise must be 'gaussian' or 'ou', got {self.noise!r}")
-        if self.algo not in ALGOS:
-            raise ValueError(f"unknown algorithm {self.algo!r}; choose from {', '.join(ALGOS)}")
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
-
-    @property
-    def model_based(self) -> bool:
-        return self.algo in ("mbpo", "mbmpo")
 
     @property
     def planned_steps(self) -> int:
@@ -399,12 +393,11 @@ def resolve(config: TrainConfig) -> TrainConfig:
 
     Idempotent. Raises ValueError (one line, for the user) when the fields do not fit together.
     """
-    algo = config.algo
+    agent_defaults = registry.get(config.algo).defaults(config)  # checks the agent's rules too
     values: dict[str, Any] = {}
-    if config.task_set is None:
-        values["task_set"] = "train" if algo == "mbmpo" else "nominal"
-    if config.updates_per_step is None:
-        values["updates_per_step"] = 2 if config.model_based else 1  # dreamer: train_ratio
+    for name in ("task_set", "updates_per_step"):
+        if getattr(config, name) is None:
+            values[name] = agent_defaults[name]
     if config.model.num_elites is None:
         values["model.num_elites"] = min(5, config.model.ensemble_size)
     if config.ma.temporal_dt is None:
@@ -414,17 +407,4 @@ def resolve(config: TrainConfig) -> TrainConfig:
             values["ma.temporal_dt"] = envs.make(config.env, config.physics).dt
         else:
             values["ma.temporal_dt"] = 1.0
-    config = replace_fields(config, values) if values else config
-    slots, max_len = config.model.num_elites, config.mb.rollout_schedule[3]
-    if config.model_based and config.mb.rollout_batch < slots:
-        raise ValueError(
-            f"mb rollout_batch ({config.mb.rollout_batch}) must be >= model num_elites ({slots})"
-        )
-    if config.model_based and (
-        config.mb.rollout_batch // slots * max_len > config.mb.model_buffer_size // slots
-    ):
-        raise ValueError(
-            f"mb model_buffer_size ({config.mb.model_buffer_size}) must hold one rollout: "
-            f">= rollout_batch x max rollout length = {config.mb.rollout_batch * max_len}"
-        )
-    return config
+    return replace_fields(config, values) if values else config

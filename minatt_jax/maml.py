@@ -79,7 +79,8 @@ def vpg_loss(sac: SAC, gamma: float) -> Callable[..., jax.Array]:
             pen, _ = ma.penalty(
                 sac.regularizer.ma_config, sac.control, actor_params, data.obs[0], key,
                 prev_params=agent.prev_actor_params, next_obs=data.next_obs[0],
-                update_step=agent.updates, alpha=agent.ma_alpha, terms=agent.ma_terms,
+                update_step=agent.updates, alpha=agent.hyper["alpha"],
+                terms=agent.hyper["ma_terms"],
             )  # fmt: skip
             pg = pg + pen
         return pg
@@ -89,7 +90,6 @@ def vpg_loss(sac: SAC, gamma: float) -> Callable[..., jax.Array]:
 
 def make_meta_step(
     sac: SAC,
-    inner_lr: float,
     first_order: bool = False,
     inner: str = "sac",
     gamma: float = 0.99,
@@ -98,7 +98,8 @@ def make_meta_step(
     cg_iters: int = 10,
     backtracks: int = 10,
 ) -> MetaStep:
-    """Builds the MAML meta step (inner "sac" or "vpg"; outer "sac" or "trpo") for SAC."""
+    """Builds the MAML meta step (inner "sac" or "vpg"; outer "sac" or "trpo") for SAC. The
+    inner step size beta is the agent's ``hyper["inner_lr"]`` (a population sweeps it)."""
     if inner not in INNER_ALGOS:
         raise ValueError(f"inner algorithm must be one of {INNER_ALGOS}, got {inner!r}")
     if outer not in OUTER_ALGOS:
@@ -110,13 +111,10 @@ def make_meta_step(
         agent: SACState,
         support: Any,
         key: jax.Array,
-        step_size: jax.Array | float | None = None,
     ) -> tuple[Any, jax.Array]:
-        """One inner step on one task's support data; returns (theta', inner loss).
-
-        ``step_size`` (traced values allowed: populations sweep it) replaces ``inner_lr``.
-        """
-        beta = inner_lr if step_size is None else step_size
+        """One inner step on one task's support data with beta = ``agent.hyper["inner_lr"]``;
+        returns (theta', inner loss)."""
+        beta = agent.hyper["inner_lr"]
 
         def loss(p):
             if inner_objective is not None:
@@ -135,14 +133,13 @@ def make_meta_step(
         supports: Transitions,
         queries: Transitions,
         key: jax.Array,
-        step_size: jax.Array | float | None = None,
     ) -> tuple[jax.Array, dict]:
         """mean_i L_i(theta'_i) over tasks (leading axis of supports and queries)."""
         tasks = queries.reward.shape[0]
 
         def task(support, query, k):
             k_in, k_out = jax.random.split(k)
-            adapted, inner_loss = adapt(actor_params, agent, support, k_in, step_size)
+            adapted, inner_loss = adapt(actor_params, agent, support, k_in)
             outer_loss, (metrics, mean_logp) = sac.actor_loss(adapted, agent, query, k_out)
             return outer_loss, (inner_loss, metrics, mean_logp, adapted)
 
@@ -164,22 +161,18 @@ def make_meta_step(
         supports: Transitions,
         queries: Transitions,
         key: jax.Array,
-        step_size: jax.Array | float | None = None,
     ) -> tuple[SACState, Any, dict]:
-        """Critic step, then the meta actor step; returns (agent, adapted params, metrics).
-
-        ``step_size`` replaces the inner step size ``inner_lr`` (per-member data in populations).
-        """
+        """Critic step, then the meta actor step; returns (agent, adapted params, metrics)."""
         k_critic, k_actor = jax.random.split(key)
         agent, c_metrics = sac.critic_step(agent, critic_batch, k_critic)
         (loss, aux), grads = jax.value_and_grad(meta_loss, has_aux=True)(
-            agent.actor_params, agent, supports, queries, k_actor, step_size
+            agent.actor_params, agent, supports, queries, k_actor
         )
         adapted = aux.pop("adapted")
         mean_logp = aux.pop("mean_logp")
         if outer == "trpo":
             new_params, trpo_metrics = trust_region_step(
-                agent, supports, queries, k_actor, grads, loss, step_size
+                agent, supports, queries, k_actor, grads, loss
             )
             aux.update(trpo_metrics)
             agent = sac.finish_actor_step(agent, None, mean_logp, new_actor_params=new_params)
@@ -188,7 +181,7 @@ def make_meta_step(
         metrics = {**c_metrics, **aux, "entropy_coef": jnp.exp(agent.log_entropy_coef)}
         return agent, adapted, metrics
 
-    def trust_region_step(agent, supports, queries, key, grads, loss, step_size=None):
+    def trust_region_step(agent, supports, queries, key, grads, loss):
         """TRPO on the meta objective (see the module docstring)."""
         old = agent.actor_params
         flat_old, unravel = ravel_pytree(old)
@@ -221,7 +214,7 @@ def make_meta_step(
         full_step = -jnp.sqrt(2.0 * max_kl / jnp.maximum(shs, 1e-12)) * direction
 
         def objective(flat):
-            return meta_loss(unravel(flat), agent, supports, queries, key, step_size)[0]
+            return meta_loss(unravel(flat), agent, supports, queries, key)[0]
 
         def try_step(j, carry):
             accepted, best = carry

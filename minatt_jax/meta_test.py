@@ -4,23 +4,13 @@ For every task of a task set (mass, crippled, slope, ...):
 
 1. evaluate the trained policy (deterministic episodes on that task): step 0;
 2. collect ``shots`` real episodes on the task with the trained (stochastic) policy;
-3. ``adapt_steps`` times: one adaptation step, then evaluate again. An adaptation step is
-   * sac: ``updates_per_step`` SAC updates (actor, critics, entropy; MA included) on batches drawn
-     from the K collected episodes;
-   * mbpo / mbmpo: the dynamics ensemble is refitted once on the K episodes (starting from the
-     trained ensemble); each step imagines transitions of the current policy in the refitted
-     model from collected states (one slot per elite) and applies the inner step
-     theta <- theta - beta grad L(theta) on each slot's imagined data, averaged over slots.
-     mbmpo uses its own inner step (``mb.meta_inner``: the SAC actor loss on one-step
-     transitions, or VPG on ``vpg_horizon``-step trajectories; first-order or not; beta =
-     ``meta_inner_lr``); mbpo, which has no meta step, the SAC inner step. The SAC inner step
-     reads only the supports' states (collected real states) and the trained critic, so the
-     model, refitted or not (``refit_model``), enters only through VPG's inner step or the
-     rollout reading of MA's temporal term, and is refitted only for those;
-   * dreamer: ``updates_per_step`` DreamerV3 updates (world model, actor, critic; MA included)
-     on sequences sampled from the K collected episodes (its policy is recurrent: collection and
-     evaluation run it through ``policies``, feedback with respect to the observation).
+3. ``adapt_steps`` times: one adaptation step of the agent's own ``Adapter`` (its registry
+   entry's ``adapter``: SAC updates on the collected episodes for sac; the inner step
+   theta <- theta - beta grad L(theta) on data imagined in the (refitted) model for mbpo and
+   mbmpo; DreamerV3 updates on the collected sequences for dreamer), then evaluate again.
 
+The adaptation reads its learner's ``hyper`` values (MA's weight, the inner step beta), which are
+the run's own unless the settings override them (``adapt_alpha``, ``inner_lr``).
 Every jitted function takes the task as data, so all tasks of a set run through one compiled
 program. Returns per task and per step: return, feedback norm, feedforward norm, energy.
 """
@@ -29,7 +19,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import functools
 import json
 import types
 from collections.abc import Callable
@@ -40,12 +29,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import acting, checkpoint, imagination, replay, runner
-from minatt_jax import normalizer as obs_norm
-from minatt_jax.dynamics_ensemble import make_ensemble
+from minatt_jax import acting, checkpoint, runner
+from minatt_jax.agents import registry
+from minatt_jax.agents.base import hyper_values
 from minatt_jax.evaluation import make_evaluator, summarize
-from minatt_jax.maml import Trajectories, make_meta_step
-from minatt_jax.training import make_meta, run_program_config
+from minatt_jax.training import program_key
 
 REPORTED = ("return", "feedback_norm", "feedforward_norm", "energy")
 
@@ -94,34 +82,6 @@ def _collector(env, policy_of: Callable, max_steps: int, shots: int):
     return jax.jit(collect)
 
 
-def _flat(traj: acting.Trajectory) -> tuple[Any, jax.Array]:
-    """The episodes' transitions and alive mask, flattened to (episodes * steps,)."""
-    flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
-    return jax.tree.map(flat, traj.transitions()), flat(traj.alive)
-
-
-def _dreamer_adapt(agent_fns: Any, config: Any, settings: MetaTestConfig) -> Callable:
-    """DreamerV3's adaptation step: ``updates_per_step`` updates (world model, actor, critic,
-    MA included) on windows of the run's sequence length sampled from the collected episodes."""
-    from minatt_jax.dreamer.training import episode_sequences, sample_episode_sequences
-
-    d = config.dreamer
-
-    @jax.jit
-    def adapt(agent, traj, key):
-        episodes, lengths = episode_sequences(traj)
-
-        def one(agent, k):
-            k_batch, k_update = jax.random.split(k)
-            batch = sample_episode_sequences(episodes, lengths, k_batch, d.batch_size,
-                                             d.batch_length)  # fmt: skip
-            return agent_fns.update(agent, batch, k_update)[0], None
-
-        return jax.lax.scan(one, agent, jax.random.split(key, settings.updates_per_step))[0]
-
-    return adapt
-
-
 def _distance(a: Any, b: Any) -> float:
     """The Euclidean distance between two parameter pytrees."""
     squares = jax.tree.map(lambda x, y: jnp.sum(jnp.square(x - y)), a, b)
@@ -131,126 +91,43 @@ def _distance(a: Any, b: Any) -> float:
 _PROGRAMS: collections.OrderedDict[str, Any] = collections.OrderedDict()
 
 
-def _adaptation_reads_model(config: Any) -> bool:
-    """Whether the model-based inner step reads the model's predictions: VPG's trajectories or
-    MA's rollout temporal term; the SAC inner step reads only the supports' (real) states."""
-    vpg = config.algo == "mbmpo" and config.mb.meta_inner == "vpg"
-    return vpg or config.ma.temporal == "rollout"
-
-
-def _programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
-              settings: MetaTestConfig) -> Any:  # fmt: skip
-    """The meta-test's compiled functions (evaluate, collect, refit, adapt, policy_params) for
+def _programs(config: Any, env: Any, family: Any, settings: MetaTestConfig) -> Any:
+    """The meta-test's compiled functions (evaluate, collect, and the agent's ``Adapter``) for
     one program, built once per process (the latest few kept, ``runner.keep_latest``): a run's
-    own arrays (agent with its MA weight and learning rates, normalizer, return statistics,
-    model) are their arguments, so meta-testing the runs of one program (seeds, alphas,
-    learning rates, stages, task sets) compiles once; so are the inner step size and MA's
-    weight in the adaptation (swept by ``experiments/adaptation_step.py``). Keyed by the run's
-    program (``training.run_program_config``) and the settings but those."""
+    own arrays (its learner with its hyper values, normalizer, model) are their arguments, so
+    meta-testing the runs of one program (seeds, alphas, learning rates, stages, task sets)
+    compiles once. Keyed by the run's program (``training.program_key``) and the settings but
+    the seed and those that enter as data."""
     swept = dataclasses.replace(settings, seed=0, inner_lr=None, adapt_alpha=None,
                                 refit_model=True)  # fmt: skip
-    key = json.dumps([run_program_config(config).to_dict(), repr(swept)], sort_keys=True,
-                     default=str)  # fmt: skip
-    build = functools.partial(_build_programs, config, env, sac, kind, ensemble, settings)
+    key = json.dumps([program_key(config), repr(swept)], sort_keys=True, default=str)
+
+    def build() -> Any:
+        spec = registry.get(config.algo)
+        return types.SimpleNamespace(
+            evaluate=make_evaluator(env, family.deterministic, config.max_episode_steps,
+                                    settings.episodes),
+            collect=_collector(env, family.stochastic, config.max_episode_steps, settings.shots),
+            adapter=spec.adapter(config, env, family, settings),
+        )  # fmt: skip
+
     return runner.keep_latest(_PROGRAMS, key, build)
 
 
-def _build_programs(config: Any, env: Any, sac: Any, kind: Any, ensemble: Any,
-                    settings: MetaTestConfig) -> Any:  # fmt: skip
-    """``_programs``' functions, compiled on first call."""
-    model_based = config.model_based
-    dreamer = config.algo == "dreamer"
-    norm_on = config.sac.normalize_obs
-    max_steps = config.max_episode_steps
-
-    def normalize(normalizer, obs):
-        return obs_norm.normalize(normalizer, obs, norm_on)
-
-    def learned(b, normalizer, return_stats):
-        """A batch as the run's agent learned from it (observation and reward scales)."""
-        return b.replace(obs=normalize(normalizer, b.obs),
-                         next_obs=normalize(normalizer, b.next_obs),
-                         reward=obs_norm.scale_reward(return_stats, b.reward))  # fmt: skip
-
-    evaluator = make_evaluator(env, kind.deterministic, max_steps, settings.episodes)
-    collect = _collector(env, kind.stochastic, max_steps, settings.shots)
-    if dreamer:
-        adapt = _dreamer_adapt(sac, config, settings)
-
-        def policy_params(agent):
-            return {"world_model": agent.params["world_model"], "actor": agent.params["actor"]}
-    else:
-
-        def policy_params(agent):
-            return agent.actor_params
-
-    capacity = settings.shots * max_steps
-    batch = config.sac.batch_size
-    refit = None
-
-    def collected_buffer(data, valid):
-        empty = replay.init_buffer(capacity, env.observation_size, env.action_size)
-        return replay.insert_masked(empty, data, valid)
-
-    if not model_based and not dreamer:
-
-        @jax.jit
-        def adapt(agent, data, valid, key, normalizer, return_stats):
-            buffer = collected_buffer(data, valid)
-
-            def one(agent, k):
-                k_batch, k_sac = jax.random.split(k)
-                b = replay.sample(buffer, k_batch, batch)
-                b = learned(b, normalizer, return_stats)
-                return sac.update(agent, b, k_sac)[0], None
-
-            keys = jax.random.split(key, settings.updates_per_step)
-            return jax.lax.scan(one, agent, keys)[0]
-
-    elif model_based:
-        # mbmpo adapts with its own inner step (inner objective, first-order or not, beta);
-        # mbpo, which has no meta step, with the SAC inner step at the run's meta_inner_lr.
-        meta = make_meta(config, sac) if config.algo == "mbmpo" else make_meta_step(
-            sac, config.mb.meta_inner_lr
-        )  # fmt: skip
-        vpg = config.algo == "mbmpo" and config.mb.meta_inner == "vpg"
-        horizon = config.mb.vpg_horizon if vpg else 1
-        slots = config.model.num_elites
-        per_slot = max(batch // slots, 16)
-
-        @jax.jit
-        def refit(ens_state, data, valid, key):
-            buffer = collected_buffer(data, valid)
-            return ensemble.fit(ens_state, buffer.data, buffer.size, key)[0]
-
-        @jax.jit
-        def adapt(agent, ens_state, data, valid, key, normalizer, return_stats, step_size):
-            k_start, k_roll, k_inner = jax.random.split(key, 3)
-            count = jnp.maximum(jnp.sum(valid).astype(jnp.int32), 1)
-            order = jnp.argsort(valid <= 0, stable=True)
-            idx = order[jax.random.randint(k_start, (slots, per_slot), 0, count)]
-            rollouts, alive = imagination.imagine(
-                ensemble, ens_state, ens_state.elites,
-                lambda p, obs, k: sac.sample(p, normalize(normalizer, obs), k), agent.actor_params,
-                env.terminated, data.obs[idx], jnp.asarray(horizon), horizon, k_roll,
-                config.mb.obs_clip,
-            )  # fmt: skip
-            rollouts = learned(rollouts, normalizer, return_stats)
-            if vpg:
-                supports = Trajectories(data=rollouts, alive=alive)
-            else:  # one step from real states: every transition is taken
-                supports = jax.tree.map(lambda x: x[:, 0], rollouts)
-
-            def inner(p, k):
-                adapted = jax.vmap(
-                    lambda s, kk: meta.adapt(p, agent, s, kk, step_size=step_size)[0]
-                )(supports, jax.random.split(k, slots))
-                return jax.tree.map(lambda a: jnp.mean(a, axis=0), adapted)
-
-            return agent.replace(actor_params=inner(agent.actor_params, k_inner))
-
-    return types.SimpleNamespace(evaluate=evaluator, collect=collect, refit=refit, adapt=adapt,
-                                 policy_params=policy_params)  # fmt: skip
+def _learner_hyper(spec: Any, config: Any, settings: MetaTestConfig) -> dict[str, Any]:
+    """The learner's hyper values for the adaptation: the run's, with the settings' overrides
+    (RunError when the agent has no such value)."""
+    hyper = hyper_values(spec, config)
+    for setting, name in (("adapt_alpha", "alpha"), ("inner_lr", "inner_lr")):
+        value = getattr(settings, setting)
+        if value is None:
+            continue
+        if name not in hyper:
+            flag = setting.replace("_", "-")
+            raise runner.RunError(f"--{flag} does not apply to {config.algo} runs (their learner "
+                                  f"has no {name})")  # fmt: skip
+        hyper[name] = np.float32(value)
+    return hyper
 
 
 def meta_test(
@@ -267,76 +144,51 @@ def meta_test(
         envs.check_task_set_name(variant)
     except (checkpoint.CheckpointError, envs.UnknownNameError) as e:
         raise runner.RunError(str(e)) from None
-    config, env, sac, kind = policy.config, policy.env, policy.agent, policy.family
-    model_based = config.model_based
-    dreamer = config.algo == "dreamer"
-    # The agent (and the ensemble) alone: no replay or model buffers are allocated.
-    like = {"agent": jax.eval_shape(sac.init, jax.random.PRNGKey(0))}
-    ensemble = None
-    if model_based:
-        ensemble = make_ensemble(env.observation_size, env.action_size, config.model)
-        like["model"] = jax.eval_shape(ensemble.init, jax.random.PRNGKey(0))
-    if config.sac.normalize_reward:
-        like["data/return_stats"] = obs_norm.init_normalizer(1)
-    like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), like)
-    try:
-        step, parts = checkpoint.restore_items(run_dir, like, policy.step)
-    except checkpoint.CheckpointError as e:
-        raise runner.RunError(str(e)) from None
-    trained_agent = parts["agent"]
-    adapting_agent = trained_agent  # what the adaptation updates start from
-    if settings.adapt_alpha is not None:
-        if not hasattr(trained_agent, "ma_alpha"):
-            raise runner.RunError("--adapt-alpha applies to sac, mbpo and mbmpo runs")
-        adapting_agent = trained_agent.replace(ma_alpha=jnp.float32(settings.adapt_alpha))
+    config, env, family = policy.config, policy.env, policy.family
+    spec = registry.get(config.algo)
+    hyper = _learner_hyper(spec, config, settings)
     try:
         tasks, labels = envs.resolve_tasks(env, variant, task_specs)
     except envs.TaskSpecError as e:
         raise runner.RunError(str(e)) from None
-    programs = _programs(config, env, sac, kind, ensemble, settings)
-    normalizer, return_stats = policy.normalizer, parts.get("data/return_stats")
-    policy_params = programs.policy_params
-    step_size = None
-    if model_based:
-        beta = config.mb.meta_inner_lr if settings.inner_lr is None else settings.inner_lr
-        step_size = jnp.float32(beta)
+    programs = _programs(config, env, family, settings)
+    adapter = programs.adapter
+    # The learner (and what its adaptation reads) alone: no replay or model buffers are read.
+    # Its hyper values are the run's (with the settings' overrides), whatever the checkpoint held.
+    try:
+        step, parts = checkpoint.restore_items(run_dir, adapter.like, policy.step)
+    except checkpoint.CheckpointError as e:
+        raise runner.RunError(str(e)) from None
+    trained = parts["agent"]
+    adapting = trained.replace(hyper={k: jnp.asarray(v) for k, v in hyper.items()})
+    normalizer = policy.normalizer
     key = jax.random.PRNGKey(settings.seed)
     rows = []
     for t, (task, label) in enumerate(zip(tasks, labels, strict=True)):
         k_task = jax.random.fold_in(key, t)
         task_set = envs.stack_tasks([task])
-        agent = adapting_agent
+        learner = adapting
 
-        def evaluate(agent, i, task_set=task_set, k_task=k_task):
-            result = programs.evaluate(policy_params(agent), normalizer,
-                                       jax.random.fold_in(k_task, 1000 + i), task_set)  # fmt: skip
+        def evaluate(learner, i, task_set=task_set, k_task=k_task):
+            params = adapter.policy_params(learner)
+            result = programs.evaluate(params, normalizer, jax.random.fold_in(k_task, 1000 + i),
+                                       task_set)  # fmt: skip
             return summarize(jax.device_get(result), env.dt)
 
-        curve, moved = [evaluate(agent, 0)], []
-        traj = programs.collect(policy_params(agent), normalizer, jax.random.fold_in(k_task, 1),
-                                task)  # fmt: skip
-        data, valid = _flat(traj)
-        ens_state = None
-        if model_based and settings.adapt_steps > 0:
-            ens_state = parts["model"]
-            if settings.refit_model and _adaptation_reads_model(config):
-                ens_state = programs.refit(ens_state, data, valid, jax.random.fold_in(k_task, 2))
+        curve, moved = [evaluate(learner, 0)], []
+        traj = programs.collect(adapter.policy_params(learner), normalizer,
+                                jax.random.fold_in(k_task, 1), task)  # fmt: skip
+        context = adapter.prepare(parts, normalizer, traj, jax.random.fold_in(k_task, 2),
+                                  settings.refit_model)  # fmt: skip
         for i in range(1, settings.adapt_steps + 1):
-            k = jax.random.fold_in(k_task, 10 + i)
-            if model_based:
-                agent = programs.adapt(
-                    agent, ens_state, data, valid, k, normalizer, return_stats, step_size
-                )
-            elif dreamer:
-                agent = programs.adapt(agent, traj, k)
-            else:
-                agent = programs.adapt(agent, data, valid, k, normalizer, return_stats)
-            moved.append(_distance(policy_params(agent), policy_params(trained_agent)))
-            curve.append(evaluate(agent, i))
+            learner = adapter.step(learner, context, jax.random.fold_in(k_task, 10 + i))
+            moved.append(_distance(adapter.policy_params(learner),
+                                   adapter.policy_params(trained)))  # fmt: skip
+            curve.append(evaluate(learner, i))
         row = {
             "task": label,
             "shots": settings.shots,
-            "collected_transitions": int(np.sum(np.asarray(valid))),
+            "collected_transitions": int(np.sum(np.asarray(traj.alive))),
             **{f"{m}_curve": [c[m] for c in curve] for m in REPORTED},
             **{f"{m}_std_curve": [c[f"{m}_std"] for c in curve] for m in REPORTED},
             # || adapted policy parameters - trained ones || after each adaptation step: how

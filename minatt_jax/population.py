@@ -1,13 +1,13 @@
 """Populations: many agents (seeds x swept values) trained in one compiled program.
 
 A population is a list of member configurations (``expand``: seeds x the cartesian grid of swept
-values). Members that differ only in fields that are *data* (``training.DATA_FIELDS``: the seed,
-the MA weight, the SAC learning rates, MB-MPO's inner step size; and the MA mode, full /
-Jacobian-only / temporal-only, as 0/1 term weights) share one program: their train states are
-stacked on a leading axis and every iteration is vmapped over it (the trainer's ``run_chunk``: SAC,
-MBPO, MB-MPO and DreamerV3 alike), so sweeping those values never recompiles. Members that differ in
-anything else (network sizes, ensemble size, rollout batch, algorithm, ...) form separate groups,
-compiled once each and trained one after another.
+values). Members that differ only in their seed and their agent's *hyper* values (the agent's
+``AgentSpec.hyper``: the MA weight, the SAC learning rates, the inner step size; and the MA mode,
+full / Jacobian-only / temporal-only, as 0/1 term weights) share one program: their train states
+are stacked on a leading axis and every iteration is vmapped over it (the trainer's
+``run_chunk``, whatever the agent), so sweeping those values never recompiles. Members that
+differ in anything else (network sizes, ensemble size, rollout batch, algorithm, ...) form
+separate groups, compiled once each and trained one after another.
 
 The schedule (warm-up, model refits, update start) is a function of the env-step counter, which
 all members of a group share: it is passed unbatched, so every ``lax.cond`` of the schedule stays
@@ -42,6 +42,7 @@ import numpy as np
 
 from minatt_jax import checkpoint, run_guard, runner
 from minatt_jax import min_attention as ma
+from minatt_jax.agents.base import config_field, hyper_values
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
 from minatt_jax.evaluation import summarize
 from minatt_jax.run_files import (
@@ -50,14 +51,7 @@ from minatt_jax.run_files import (
     load_config,
     write_json_atomic,
 )
-from minatt_jax.training import (
-    Trainer,
-    TrainState,
-    config_field,
-    data_values,
-    program_config,
-    with_data,
-)
+from minatt_jax.training import Trainer, program_key
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -119,9 +113,9 @@ def _split_values(text: str) -> list[str]:
 
 def groups(members: list[TrainConfig]) -> list[list[int]]:
     """Member indices grouped by program, in first-appearance order."""
-    order: dict[TrainConfig, list[int]] = {}
+    order: dict[str, list[int]] = {}
     for i, m in enumerate(members):
-        order.setdefault(program_config(m), []).append(i)
+        order.setdefault(program_key(m, ma_structure=False), []).append(i)
     return list(order.values())
 
 
@@ -151,13 +145,13 @@ class Program:
 
     def __init__(self, members: list[TrainConfig]) -> None:
         configs = members
-        # MA terms are computed when any member uses them; alpha = 0 members weigh them by 0,
-        # members whose mode leaves a term out weigh it by 0 (their "ma.terms").
+        # MA terms are computed when any member uses them (the program's MA structure: the
+        # largest alpha's activity, the union of the modes); alpha = 0 members weigh them by 0,
+        # members whose mode leaves a term out weigh it by 0 (their hyper "ma_terms").
         alpha = max(c.ma.alpha for c in configs)
         modes = {c.ma.mode for c in configs}
         mode = modes.pop() if len(modes) == 1 else ma.union_mode([c.ma for c in configs])
-        self.config = replace_fields(program_config(configs[0]), {"ma.alpha": alpha,
-                                                                 "ma.mode": mode})  # fmt: skip
+        self.config = replace_fields(configs[0], {"ma.alpha": alpha, "ma.mode": mode})
         # The trainer and this program's compiled functions are the process's (runner.trainer_for):
         # populations and single runs of one program in a process build them once.
         self.trainer, self.compiled = runner.trainer_for(self.config)
@@ -173,17 +167,18 @@ class Program:
             self.compiled[functions] = _population_functions(t, self.sharding)
         self._init, self.chunk, self.evaluate = self.compiled[functions]
 
-    def compiled_chunk(self, states: TrainState, log: Callable[[str], None]) -> Any:
+    def compiled_chunk(self, states: Any, log: Callable[[str], None]) -> Any:
         """The chunk compiled for ``states`` (these members, this placement), once per process."""
         key = ("population chunk", self.sharding, len(self.members))
         what = f"population step ({len(self.members)} members)"
         return runner.compiled_once(self.compiled, key, self.chunk, states, what, log)
 
-    def init(self) -> TrainState:
-        """Every member's initial state (its seed's, with its data values), stacked. As for
+    def init(self) -> Any:
+        """Every member's initial state (its seed's, with its hyper values), stacked. As for
         single runs, every leaf gets its own buffer (the state is donated to the chunk)."""
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in self.members])
-        values = stack([data_values(c) for c in self.members])
+        spec = self.trainer.spec
+        values = stack([hyper_values(spec, c) for c in self.members])
         states = self._init(keys, values)
         return self.place(jax.tree.map(lambda x: jnp.array(x, copy=True), states))
 
@@ -196,7 +191,7 @@ class Program:
         mesh = jax.sharding.Mesh(np.asarray(devices), ("members",))
         return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("members"))
 
-    def place(self, states: TrainState) -> TrainState:
+    def place(self, states: Any) -> Any:
         """The stacked states split over the devices (``_member_sharding``), if several."""
         return states if self.sharding is None else jax.device_put(states, self.sharding)
 
@@ -204,13 +199,10 @@ class Program:
 def _population_functions(
     t: Trainer, sharding: jax.sharding.Sharding | None
 ) -> tuple[Callable, Callable, Callable]:
-    """The jitted, vmapped init (keys, data values), chunk and evaluation of a trainer."""
+    """The jitted, vmapped init (keys, hyper values), chunk and evaluation of a trainer."""
 
-    def init_member(key: jax.Array, values: dict[str, jax.Array]) -> TrainState:
-        return with_data(t.parts["init_state"](key), values)
-
-    def chunk(states: TrainState) -> tuple[TrainState, dict]:
-        return t.parts["run_chunk"](states, states.env_steps[0], True)
+    def chunk(states: Any) -> tuple[Any, dict]:
+        return t.run_chunk(states, states.env_steps[0], True)
 
     if sharding is None:
         jitted_chunk = jax.jit(chunk, donate_argnums=0)
@@ -218,12 +210,13 @@ def _population_functions(
         jitted_chunk = jax.jit(chunk, donate_argnums=0, in_shardings=sharding,
                                out_shardings=sharding)  # fmt: skip
     evaluate = jax.jit(jax.vmap(t.evaluate, in_axes=(0, 0, None)))
-    return jax.jit(jax.vmap(init_member)), jitted_chunk, evaluate
+    return jax.jit(jax.vmap(t.init_state)), jitted_chunk, evaluate
 
 
 def state_bytes(trainer: Trainer) -> int:
     """Bytes of one member's train state (from shapes alone: nothing is allocated)."""
-    shapes = jax.eval_shape(trainer.parts["init_state"], jax.random.PRNGKey(0))
+    hyper = hyper_values(trainer.spec, trainer.config)
+    shapes = jax.eval_shape(trainer.init_state, jax.random.PRNGKey(0), hyper)
     return sum(int(np.prod(s.shape)) * s.dtype.itemsize for s in jax.tree.leaves(shapes))
 
 

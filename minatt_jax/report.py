@@ -35,9 +35,9 @@ import numpy as np
 import minatt_jax.envs as envs
 from minatt_jax import acting, checkpoint, runner
 from minatt_jax import control_analysis as ca
+from minatt_jax.agents import registry
 from minatt_jax.config import TrainConfig
 from minatt_jax.plots import _pyplot, save_figure
-from minatt_jax.policies import family
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
@@ -90,11 +90,11 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
 
 class _GroupTools:
     """Jitted functions for one group's shapes (built once, shared by its seeds); the policy
-    family (``policies``) makes them the same for feedforward and recurrent policies."""
+    family (the agent's ``policy``) makes them the same for feedforward and recurrent policies."""
 
     def __init__(self, config: TrainConfig, settings: AnalyzeConfig) -> None:
         env = envs.make(config.env, config.physics)
-        self.family = family(config, env)
+        self.family = registry.get(config.algo).policy(config, env)
         self.env, self.config = env, config
         steps = config.max_episode_steps
         dt = env.dt

@@ -23,6 +23,7 @@ import numpy as np
 
 import minatt_jax.envs as envs
 from minatt_jax import checkpoint, mujoco_engine, run_guard
+from minatt_jax.agents.base import config_field, hyper_values, with_hyper
 from minatt_jax.config import TrainConfig, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's public API
@@ -34,15 +35,7 @@ from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's pub
     write_json_atomic,
     write_text_atomic,
 )
-from minatt_jax.training import (
-    DATA_FIELDS,
-    Trainer,
-    config_field,
-    data_values,
-    make_train,
-    run_program_config,
-    with_data,
-)
+from minatt_jax.training import Trainer, make_train, program_key, swept_fields
 
 TIMING_KEYS = ("env_steps_per_s", "updates_per_s", "imagined_per_s", "wall_s", "chunk_s", "eval_s",
                "compile_s")  # fmt: skip
@@ -153,9 +146,10 @@ def _restore_newest_intact(run_dir: str, state: Any, log: Callable[[str], None])
 
 
 def _changed_data(stored: TrainConfig, config: TrainConfig) -> dict[str, Any]:
-    """The data fields (``training.DATA_FIELDS`` but the seed) whose values differ."""
-    return {k: config_field(config, k) for k in DATA_FIELDS
-            if k != "seed" and config_field(config, k) != config_field(stored, k)}  # fmt: skip
+    """The swept fields (``training.swept_fields``: the agent's hyper values) whose values
+    differ."""
+    return {k: config_field(config, k) for k in swept_fields(config)
+            if config_field(config, k) != config_field(stored, k)}  # fmt: skip
 
 
 # Fields a resume may change besides the data fields: how long to train, and how long a chunk
@@ -189,17 +183,15 @@ def _check_resumable(stored: TrainConfig, config: TrainConfig, run_dir: str) -> 
         raise RunError(
             f"{run_dir} was made with other settings ({', '.join(differ)} differ); resume takes "
             f"them from its config.json (only the length, eval_every and "
-            f"{', '.join(DATA_FIELDS[1:])} may change)"
+            f"{', '.join(swept_fields(config))} may change)"
         )
 
 
 # The trainers (and their compiled chunks) of this process's latest programs, newest last: runs
 # in one process (a notebook's, a sweep script's, the tests') that differ only in seed, length
 # or data values reuse them instead of tracing and compiling again. Evaluators likewise.
-_TRAINERS: collections.OrderedDict[TrainConfig, tuple[Trainer, dict[str, Any]]] = (
-    collections.OrderedDict()
-)
-_EVALUATORS: collections.OrderedDict[tuple[TrainConfig, int], Any] = collections.OrderedDict()
+_TRAINERS: collections.OrderedDict[str, tuple[Trainer, dict[str, Any]]] = collections.OrderedDict()
+_EVALUATORS: collections.OrderedDict[tuple[str, int], Any] = collections.OrderedDict()
 _KEEP_PROGRAMS = 4
 
 
@@ -216,12 +208,12 @@ def keep_latest(cache: collections.OrderedDict, key: Any, build: Callable[[], An
 
 
 def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
-    """The trainer of ``config``'s program (``run_program_config``) and a dict for what the
-    runner compiles from it, built once per process (the last ``_KEEP_PROGRAMS`` kept). Built
-    from the program's configuration, not the run's, so nothing depends on which run came
-    first: a run's own seed and data values enter its state (``init``, ``with_data``)."""
-    key = run_program_config(config)
-    return keep_latest(_TRAINERS, key, lambda: (make_train(key), {}))
+    """The trainer of ``config``'s program (``training.program_key``) and a dict for what the
+    runner compiles from it, built once per process (the last ``_KEEP_PROGRAMS`` kept): runs
+    that differ only in seed, length or swept values share it, as the program never reads
+    those (they enter the state: ``init(key, hyper)``)."""
+    key = program_key(config)
+    return keep_latest(_TRAINERS, key, lambda: (make_train(config), {}))
 
 
 def compiled_once(
@@ -285,15 +277,17 @@ def _train(
     if resume:
         stored = load_config(run_dir)
         _check_resumable(stored, config, run_dir)
-        state = trainer.init(jax.random.PRNGKey(config.seed))
+        hyper = hyper_values(trainer.spec, config)
+        state = trainer.init(jax.random.PRNGKey(config.seed), hyper)
         step, state = _restore_newest_intact(run_dir, state, log)
+        # Every resume trains with the run's own values, whatever the checkpoint held.
+        state = with_hyper(state, hyper)
         if step > config.planned_steps:
             raise RunError(f"{run_dir} is already at step {step}; ask for at least that many "
                            "steps to resume it")  # fmt: skip
         check_on_chunk_grid(step, config.eval_every, run_dir)
         changed = _changed_data(stored, config)
         if changed:
-            state = with_data(state, data_values(config))
             log(
                 f"resuming with {', '.join(f'{k}={v:g}' for k, v in changed.items())} "
                 f"(was {', '.join(f'{k}={config_field(stored, k):g}' for k in changed)})"
@@ -312,8 +306,7 @@ def _train(
             raise RunError(f"{run_dir} holds checkpoints or metrics of another run but no "
                            "config.json; choose another --out or remove them")  # fmt: skip
         write_json_atomic(config_path, config.to_dict())
-        fresh = with_data(trainer.init(jax.random.PRNGKey(config.seed)), data_values(config))
-        state = jax.device_put(fresh, jax.devices()[0])  # the data values committed as well
+        state = trainer.init(jax.random.PRNGKey(config.seed), hyper_values(trainer.spec, config))
 
     t0 = time.perf_counter()
     chunk = compiled_once(compiled, "chunk", trainer.train_chunk, state, "training step", log)
@@ -429,7 +422,7 @@ def evaluate_run(
         # One evaluator per program and episode count: runs of one program (seeds, stages,
         # data values) evaluate without tracing and compiling again.
         evaluator = keep_latest(
-            _EVALUATORS, (run_program_config(config), episodes),
+            _EVALUATORS, (program_key(config), episodes),
             lambda: make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
                                    episodes),
         )  # fmt: skip

@@ -49,17 +49,16 @@ class SACState:
     entropy_opt: Any
     prev_actor_params: Any  # parameters before the last actor update (MA temporal term)
     updates: jax.Array
-    ma_alpha: jax.Array  # the MA weight: data, so a population sweeps it without recompiling
-    # (feedback, temporal) 0/1 weights of the member's MA mode (ma.term_weights): data, so
-    # full / Jacobian-only / temporal-only members share one program (checkpoints from before
-    # it exist restore it as (1, 1): their program computed only their mode's terms)
-    ma_terms: jax.Array
+    # Every value a population sweeps, read here by the losses (``agents.base``): "alpha" (MA's
+    # weight), "ma_terms" (the MA mode's (feedback, temporal) 0/1 weights), "actor_lr",
+    # "critic_lr", "entropy_lr"; MB-MPO adds "inner_lr".
+    hyper: dict[str, jax.Array]
 
 
 class SAC(NamedTuple):
     """The functions of a SAC agent for fixed dimensions and settings."""
 
-    init: Callable[[jax.Array], SACState]
+    init: Callable[[jax.Array, dict[str, jax.Array]], SACState]
     update: Callable[[SACState, Transitions, jax.Array], tuple[SACState, dict]]
     control: Callable[[Any, jax.Array], jax.Array]  # deterministic u(params, obs)
     sample: Callable[[Any, jax.Array, jax.Array], jax.Array]  # (params, obs, key) -> action
@@ -72,6 +71,18 @@ class SAC(NamedTuple):
     regularizer: ma.Regularizer
 
 
+HYPER = {"alpha": "ma.alpha", "ma_terms": "ma.mode", "actor_lr": "sac.actor_lr",
+         "critic_lr": "sac.critic_lr", "entropy_lr": "sac.entropy_lr"}  # fmt: skip
+
+
+def with_learning_rate(opt_state: Any, lr: jax.Array) -> Any:
+    """An ``optax.inject_hyperparams`` state with its learning rate set to ``lr`` (the state's
+    ``hyper`` value: the optimizer state's copy only mirrors it)."""
+    hyper = dict(opt_state.hyperparams)
+    hyper["learning_rate"] = jnp.asarray(lr, hyper["learning_rate"].dtype)
+    return opt_state._replace(hyperparams=hyper)
+
+
 def make_sac(
     obs_dim: int,
     act_dim: int,
@@ -82,11 +93,10 @@ def make_sac(
     """Builds a SAC agent; ``update`` takes a batch of (already normalized) transitions."""
     actor = Actor(config.hidden, act_dim, config.log_std_min, config.log_std_max)
     critic = TwinCritic(config.hidden)
-    # Learning rates live in the optimizer states (data): a population sweeps them per member.
+    # The learning rates are the state's hyper values (a population sweeps them per member),
+    # set into the optimizer state before each step.
     adam = optax.inject_hyperparams(optax.adam)
-    actor_tx = adam(learning_rate=config.actor_lr)
-    critic_tx = adam(learning_rate=config.critic_lr)
-    entropy_tx = adam(learning_rate=config.entropy_lr)
+    actor_tx = critic_tx = entropy_tx = adam(learning_rate=0.0)
     target_entropy = -float(act_dim) if config.target_entropy is None else config.target_entropy
 
     def control(params: Any, obs: jax.Array) -> jax.Array:
@@ -103,7 +113,9 @@ def make_sac(
         mean, log_std = actor.apply(params, obs)
         return tanh_gaussian_log_prob(mean, log_std, action)
 
-    def init(key: jax.Array) -> SACState:
+    def init(key: jax.Array, hyper: dict[str, jax.Array]) -> SACState:
+        """Fresh parameters and optimizer states; ``hyper``: the values named in ``HYPER`` (MB-MPO:
+        and ``"inner_lr"``), required: none defaults."""
         k_actor, k_critic = jax.random.split(key)
         obs = jnp.zeros((1, obs_dim))
         actor_params = actor.init(k_actor, obs)
@@ -115,13 +127,12 @@ def make_sac(
             # Copies: a train state must not hold one buffer twice (it is donated to the step).
             target_critic_params=jax.tree.map(jnp.copy, critic_params),
             log_entropy_coef=log_ent,
-            actor_opt=actor_tx.init(actor_params),
-            critic_opt=critic_tx.init(critic_params),
-            entropy_opt=entropy_tx.init(log_ent),
+            actor_opt=with_learning_rate(actor_tx.init(actor_params), hyper["actor_lr"]),
+            critic_opt=with_learning_rate(critic_tx.init(critic_params), hyper["critic_lr"]),
+            entropy_opt=with_learning_rate(entropy_tx.init(log_ent), hyper["entropy_lr"]),
             prev_actor_params=jax.tree.map(jnp.copy, actor_params),
             updates=jnp.zeros((), jnp.int32),
-            ma_alpha=jnp.asarray(ma_config.alpha, jnp.float32),
-            ma_terms=jnp.asarray(ma.term_weights(ma_config.mode), jnp.float32),
+            hyper={k: jnp.asarray(v, jnp.float32) for k, v in hyper.items()},
         )
 
     def shape_rewards(state: SACState, batch: Transitions, key: jax.Array) -> Transitions:
@@ -129,7 +140,7 @@ def make_sac(
         _, k_shape = jax.random.split(key)
         reward = regularizer.shape_rewards(
             state.actor_params, batch.obs, batch.next_obs, batch.reward, k_shape,
-            state.prev_actor_params, state.ma_alpha, state.ma_terms,
+            state.prev_actor_params, state.hyper["alpha"], state.hyper["ma_terms"],
         )  # fmt: skip
         return batch.replace(reward=reward)
 
@@ -142,7 +153,7 @@ def make_sac(
         # The entropy-like placement of MA: its penalty at s' is paid like ent * log pi(a'|s').
         ma_next = regularizer.next_value_penalty(
             state.actor_params, batch.next_obs, k_value, state.prev_actor_params,
-            state.ma_alpha, state.ma_terms,
+            state.hyper["alpha"], state.hyper["ma_terms"],
         )  # fmt: skip
         v_next = jnp.min(q_next, axis=0) - ent * next_logp - ma_next
         target = batch.reward + config.gamma * (1.0 - batch.terminal) * v_next
@@ -160,7 +171,7 @@ def make_sac(
         pen, reg_metrics = regularizer.actor_penalty(
             actor_params, batch.obs, batch.next_obs, (k_ma, k_caps),
             prev_params=state.prev_actor_params, update_step=state.updates,
-            controls=jnp.tanh(mean), alpha=state.ma_alpha, terms=state.ma_terms,
+            controls=jnp.tanh(mean), alpha=state.hyper["alpha"], terms=state.hyper["ma_terms"],
         )  # fmt: skip
         metrics = {"actor_loss": sac_loss, "entropy": -jnp.mean(logp), **reg_metrics}
         return sac_loss + pen, (metrics, jnp.mean(logp))
@@ -174,7 +185,8 @@ def make_sac(
         (_, c_metrics), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
             state.critic_params, state, batch, key
         )
-        c_updates, critic_opt = critic_tx.update(c_grads, state.critic_opt, state.critic_params)
+        critic_opt = with_learning_rate(state.critic_opt, state.hyper["critic_lr"])
+        c_updates, critic_opt = critic_tx.update(c_grads, critic_opt, state.critic_params)
         critic_params = optax.apply_updates(state.critic_params, c_updates)
         return state.replace(critic_params=critic_params, critic_opt=critic_opt), c_metrics
 
@@ -184,13 +196,15 @@ def make_sac(
         """Applies actor gradients (Adam), or sets ``new_actor_params`` when given (a step made
         elsewhere, e.g. TRPO), then the entropy-coefficient and target-critic updates."""
         if new_actor_params is None:
-            a_updates, actor_opt = actor_tx.update(a_grads, state.actor_opt, state.actor_params)
+            actor_opt = with_learning_rate(state.actor_opt, state.hyper["actor_lr"])
+            a_updates, actor_opt = actor_tx.update(a_grads, actor_opt, state.actor_params)
             actor_params = optax.apply_updates(state.actor_params, a_updates)
         else:
             actor_params, actor_opt = new_actor_params, state.actor_opt
 
         e_grad = jax.grad(entropy_loss)(state.log_entropy_coef, mean_logp)
-        e_updates, entropy_opt = entropy_tx.update(e_grad, state.entropy_opt)
+        entropy_opt = with_learning_rate(state.entropy_opt, state.hyper["entropy_lr"])
+        e_updates, entropy_opt = entropy_tx.update(e_grad, entropy_opt)
         log_ent = optax.apply_updates(state.log_entropy_coef, e_updates)
         target = optax.incremental_update(
             state.critic_params, state.target_critic_params, config.tau

@@ -15,7 +15,7 @@ import pytest
 from minatt_jax import checkpoint, run_files
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import make_train
+from minatt_jax.training import hyper_of, make_train
 
 # One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("test_bad_input")
@@ -28,7 +28,7 @@ def paths(tmp_path_factory):
     root = tmp_path_factory.mktemp("bad")
     run = str(root / "run")
     run_files.write_json_atomic(os.path.join(run, "config.json"), CONFIG.to_dict())
-    state = make_train(CONFIG).init(jax.random.PRNGKey(0))
+    state = make_train(CONFIG).init(jax.random.PRNGKey(0), hyper_of(CONFIG))
     state = state.replace(env_steps=state.env_steps + 600)
     checkpoint.save(run, 600, state)
     checkpoint.save_policy_snapshot(run, 600, state.agent.actor_params, state.data.normalizer)

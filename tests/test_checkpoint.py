@@ -14,6 +14,7 @@ from minatt_jax import checkpoint, runner
 from minatt_jax import training as train_module
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.training import hyper_of
 
 # One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("test_checkpoint")
@@ -77,7 +78,7 @@ def test_load_policy_needs_no_trainer(run, monkeypatch):
 
 def test_a_different_structure_is_named_in_one_line(run):
     wider = resolve(with_overrides(CONFIG, sac_hidden=(48, 48), sac_normalize_obs=True))
-    like = train_module.make_train(wider).init(jax.random.PRNGKey(0))
+    like = train_module.make_train(wider).init(jax.random.PRNGKey(0), hyper_of(wider))
     with pytest.raises(checkpoint.CheckpointError) as err:
         checkpoint.restore(run, like)
     message = str(err.value)
@@ -94,21 +95,28 @@ def test_checkpoint_without_manifest_is_reported(run, tmp_path):
         checkpoint.describe(copy)
 
 
-def test_a_checkpoint_from_before_the_ma_term_weights_restores_them_as_ones(run, tmp_path):
-    """Checkpoints written before ``ma_terms`` existed restore it as (1, 1), the weights their
-    own program applied (it computed only its mode's terms); any other missing item is an
-    error."""
-    like = train_module.make_train(resolve(runner.load_config(run))).init(jax.random.PRNGKey(0))
+def test_a_checkpoint_from_before_the_hyper_subtree_restores_the_runs_own_values(run, tmp_path):
+    """Checkpoints written before the swept values moved into ``agent/hyper`` hold them as
+    ``agent/ma_alpha`` and ``agent/ma_terms``: those are ignored and the hyper values come from
+    the template, which every caller builds from the run's configuration; any other missing item
+    is an error."""
+    config = resolve(runner.load_config(run))
+    like = train_module.make_train(config).init(jax.random.PRNGKey(0), hyper_of(config))
     _, full = checkpoint.restore(run, like)
     agent = full.agent
-    older = {f: getattr(agent, f) for f in agent.__dataclass_fields__ if f != "ma_terms"}
+    older = {f: getattr(agent, f) for f in agent.__dataclass_fields__ if f != "hyper"}
+    older["ma_alpha"], older["ma_terms"] = np.float32(7.0), np.ones(2, np.float32)
     old_dir = str(tmp_path / "old")
     checkpoint.save(old_dir, 300, {"agent": older})
-    zeros = jax.tree.map(np.zeros_like, agent)  # as meta-test's template: shapes only
-    _, parts = checkpoint.restore_items(old_dir, {"agent": zeros})
-    np.testing.assert_array_equal(parts["agent"].ma_terms, [1.0, 1.0])
-    np.testing.assert_array_equal(parts["agent"].ma_alpha, agent.ma_alpha)
-    del older["ma_alpha"]
+    template = agent.replace(hyper={k: v * 0 + 0.25 for k, v in agent.hyper.items()})
+    _, parts = checkpoint.restore_items(old_dir, {"agent": template})
+    assert {k: float(np.ravel(v)[0]) for k, v in parts["agent"].hyper.items()} == {
+        k: 0.25 for k in agent.hyper
+    }
+    for a, b in zip(jax.tree.leaves(parts["agent"].actor_params),
+                    jax.tree.leaves(agent.actor_params), strict=True):  # fmt: skip
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    del older["log_entropy_coef"]
     checkpoint.save(str(tmp_path / "older"), 300, {"agent": older})
-    with pytest.raises(checkpoint.CheckpointError, match="missing: agent/ma_alpha"):
-        checkpoint.restore_items(str(tmp_path / "older"), {"agent": zeros})
+    with pytest.raises(checkpoint.CheckpointError, match="missing: agent/log_entropy_coef"):
+        checkpoint.restore_items(str(tmp_path / "older"), {"agent": template})

@@ -17,7 +17,7 @@ from minatt_jax.config import (
     resolve,
     with_overrides,
 )
-from minatt_jax.training import run_program_config
+from minatt_jax.training import program_key
 
 
 def test_dotted_overrides_are_typed_from_the_annotations():
@@ -167,14 +167,23 @@ def test_values_beyond_float32_or_int32_are_refused(argv, message, capsys, tmp_p
     assert status == 2 and message in err and len(err.strip().splitlines()) == 1
 
 
-def test_runs_share_a_program_exactly_when_only_data_differs():
+def test_runs_share_a_program_exactly_when_only_hyper_values_differ():
+    """The program key leaves out the agent's hyper fields, the seed and the length: runs that
+    differ in those share one compiled program; anything else, MA's on/off and mode included
+    (a single run computes its own terms alone), is another program."""
     base = resolve(with_overrides(PRESETS["smoke"], ma_alpha=1.0))
-    key = run_program_config(base)
+    key = program_key(base)
     same = {"seed": 7, "ma.alpha": 0.3, "total_steps": 9000, "sac.actor_lr": 1e-3,
-            "sac.critic_lr": 2e-3, "sac.entropy_lr": 5e-4, "mb.meta_inner_lr": 0.1}  # fmt: skip
+            "sac.critic_lr": 2e-3, "sac.entropy_lr": 5e-4}  # fmt: skip
     for field, value in same.items():
-        assert run_program_config(replace_fields(base, {field: value})) == key, field
+        assert program_key(replace_fields(base, {field: value})) == key, field
     other = {"ma.alpha": 0.0, "ma.mode": "jacobian", "num_envs": 2, "eval_every": 150,
              "sac.batch_size": base.sac.batch_size + 1}  # fmt: skip
     for field, value in other.items():
-        assert run_program_config(replace_fields(base, {field: value})) != key, field
+        assert program_key(replace_fields(base, {field: value})) != key, field
+    meta = resolve(with_overrides(base, algo="mbmpo"))
+    assert program_key(with_overrides(meta, mb_meta_inner_lr=0.1)) == program_key(meta)
+    # Population members are grouped without the MA structure: one program computes the union.
+    assert program_key(replace_fields(base, {"ma.mode": "jacobian"}), ma_structure=False) == (
+        program_key(base, ma_structure=False)
+    )

@@ -8,14 +8,15 @@ import numpy as np
 
 from minatt_jax import acting
 from minatt_jax import control_analysis as ca
-from minatt_jax.config import SACConfig
+from minatt_jax.config import SACConfig, TrainConfig
 from minatt_jax.min_attention import MAConfig
 from minatt_jax.sac import make_sac
+from minatt_jax.training import hyper_of
 
 
 def test_decomposition_reproduces_the_control_exactly():
     sac = make_sac(11, 3, SACConfig(hidden=(32, 32)), MAConfig())
-    params = sac.init(jax.random.PRNGKey(0)).actor_params
+    params = sac.init(jax.random.PRNGKey(0), hyper_of(TrainConfig())).actor_params
     obs = jax.random.normal(jax.random.PRNGKey(1), (50, 11))
     out = ca.decompose(sac.control, params, obs)
     rebuilt = jnp.einsum("tao,to->ta", out["K"], obs) + out["v"]

@@ -14,6 +14,7 @@ from minatt_jax.dreamer.agent import Batch, Latent, make_agent
 from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dreamer.networks import feature
 from minatt_jax.min_attention import MAConfig
+from minatt_jax.training import hyper_of
 
 TINY = DreamerConfig(deter=16, hidden=8, stoch=4, classes=3, blocks=2, units=16, layers=2,
                      bins=31, batch_size=3, batch_length=5, imag_length=4)  # fmt: skip
@@ -94,6 +95,10 @@ def agent():
     return make_agent(5, 2, TINY, MAConfig(alpha=0.5))
 
 
+# The MA weight and the full mode's term weights, as the agent's init takes them.
+HYPER = {"alpha": 0.5, "ma_terms": np.ones(2, np.float32)}
+
+
 def test_lambda_returns_match_a_loop(agent):
     rng = np.random.default_rng(0)
     h = 6
@@ -124,7 +129,7 @@ def _central_jacobian(f, x, eps=1e-3):
 
 
 def test_ma_jacobians_trained_and_reported_match_finite_differences(agent):
-    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    state = agent.init(jax.random.PRNGKey(0), HYPER)
     # Actor weights away from their small initialization, so the Jacobians are not tiny.
     actor = jax.tree.map(lambda w: w + 0.3 * jax.random.normal(jax.random.PRNGKey(1), w.shape),
                          state.params["actor"])  # fmt: skip
@@ -160,7 +165,7 @@ def _batch(key, config, obs_size=5, act_size=2):
 
 
 def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
-    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    state = agent.init(jax.random.PRNGKey(0), HYPER)
     batch = _batch(jax.random.PRNGKey(3), TINY)
     update = jax.jit(agent.update)
     # The learning rate warms up from 0: the first update moves nothing, the second does.
@@ -190,16 +195,18 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
 def test_ma_mode_is_data_and_each_weighting_equals_the_modes_own_agent(agent):
     """The (feedback, temporal) weights in the state pick the mode inside a program that
     computes both terms: each gives its own agent's update (a population of modes shares it)."""
-    state = agent.init(jax.random.PRNGKey(0), 0.5)
+    state = agent.init(jax.random.PRNGKey(0), HYPER)
     batch = _batch(jax.random.PRNGKey(3), TINY)
     update = jax.jit(agent.update)
     for k in (5, 6):  # past the warm-up's zero rate, so the actor has moved (temporal term)
         state, _ = update(state, batch, jax.random.PRNGKey(k))
-    np.testing.assert_array_equal(state.ma_terms, [1.0, 1.0])
+    np.testing.assert_array_equal(state.hyper["ma_terms"], [1.0, 1.0])
     penalties = []
     for mode in ("temporal", "none"):  # Jacobian-only: the population test below
         own = make_agent(5, 2, TINY, MAConfig(alpha=0.5, mode=mode))
-        weighted = state.replace(ma_terms=jnp.asarray(ma.term_weights(mode)))
+        weighted = state.replace(
+            hyper={**state.hyper, "ma_terms": jnp.asarray(ma.term_weights(mode))}
+        )
         got, got_metrics = update(weighted, batch, jax.random.PRNGKey(4))
         want, want_metrics = jax.jit(own.update)(state, batch, jax.random.PRNGKey(4))
         # (an agent without MA reports no penalty)
@@ -252,7 +259,7 @@ def test_recurrent_policy_unroll_matches_a_manual_filter(agent):
 
     from brax.envs.base import State
 
-    params = agent.init(jax.random.PRNGKey(0), 0.5).params
+    params = agent.init(jax.random.PRNGKey(0), HYPER).params
     state = State(pipeline_state=None, obs=jnp.linspace(-1.0, 1.0, 5), reward=jnp.zeros(()),
                   done=jnp.zeros(()), metrics={})  # fmt: skip
     traj = acting.unroll(Env(), agent.policy(params, False), state, 6, probe_gain=True,
@@ -284,7 +291,7 @@ def _initial_run(run_dir: str, evaluate: bool, **overrides) -> None:
     config = resolve(with_overrides(PRESETS["smoke"], env="cheetah_run", algo="dreamer",
                                     **overrides))  # fmt: skip
     trainer = make_train(config)
-    state = trainer.init(jax.random.PRNGKey(config.seed))
+    state = trainer.init(jax.random.PRNGKey(config.seed), hyper_of(config))
     record = {"step": 300}
     if evaluate:
         result = trainer.evaluate(state, jax.random.PRNGKey(1), trainer.task_set)
@@ -400,7 +407,9 @@ def test_a_dreamer_population_is_one_program_and_a_member_equals_its_own_run():
     states, metrics = program.chunk(program.init())
     assert program.chunk._cache_size() == 1
     alone = make_train(members[1])
-    single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(1)))
+    single, single_metrics = alone.train_chunk(
+        alone.init(jax.random.PRNGKey(1), hyper_of(alone.config))
+    )
     assert int(single_metrics["updates"]) > 0
     for key in ("wm_loss", "actor_loss", "critic_loss", "ma_penalty", "train_episode_return"):
         np.testing.assert_allclose(metrics[key][1], single_metrics[key], rtol=1e-4, atol=1e-6,

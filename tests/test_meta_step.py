@@ -16,14 +16,20 @@ from minatt_jax.sac import make_sac
 OBS, ACT, TASKS, BATCH = 3, 2, 2, 6
 
 
+def _hyper(alpha, inner_lr):
+    """The learner's hyper values: the inner step size beta lives there (no default)."""
+    return {"alpha": alpha, "ma_terms": np.ones(2, np.float32), "actor_lr": 3e-4,
+            "critic_lr": 3e-4, "entropy_lr": 3e-4, "inner_lr": inner_lr}  # fmt: skip
+
+
 def _setup(inner_lr, first_order, inner="sac", x64=True):
     sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
-    agent = sac.init(jax.random.PRNGKey(0))
+    agent = sac.init(jax.random.PRNGKey(0), _hyper(1.0, inner_lr))
     if x64:
         agent = jax.tree.map(
             lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, agent
         )
-    meta = make_meta_step(sac, inner_lr, first_order, inner=inner)
+    meta = make_meta_step(sac, first_order, inner=inner)
     rng = np.random.default_rng(0)
 
     def batch(shape):
@@ -107,8 +113,8 @@ def test_zero_inner_step_is_plain_sac_actor_gradient():
 def test_vpg_inner_step_raises_the_imagined_return():
     """A one-step bandit, reward = first action: the adapted policy's mean action rises."""
     sac = make_sac(OBS, ACT, SACConfig(hidden=(16, 16)), MAConfig(alpha=0.0))
-    agent = sac.init(jax.random.PRNGKey(0))
-    meta = make_meta_step(sac, 0.05, inner="vpg")
+    agent = sac.init(jax.random.PRNGKey(0), _hyper(0.0, 0.05))
+    meta = make_meta_step(sac, inner="vpg")
     obs = jax.random.normal(jax.random.PRNGKey(1), (1, 512, OBS))
     action = jax.vmap(sac.sample, in_axes=(None, 0, 0))(
         agent.actor_params, obs, jax.random.split(jax.random.PRNGKey(2), 1)
@@ -127,10 +133,10 @@ def test_vpg_inner_step_raises_the_imagined_return():
 
 def test_trpo_outer_step_stays_in_the_trust_region():
     sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
-    agent = sac.init(jax.random.PRNGKey(0))
+    agent = sac.init(jax.random.PRNGKey(0), _hyper(1.0, 0.1))
     _, _, _, supports, queries = _setup(0.1, False, x64=False)
     supports, queries = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), (supports, queries))
-    meta = make_meta_step(sac, 0.1, outer="trpo", max_kl=0.005)
+    meta = make_meta_step(sac, outer="trpo", max_kl=0.005)
     critic_batch = _task(queries, 0)
     key = jax.random.PRNGKey(5)
     before = meta.meta_loss(agent.actor_params, agent, supports, queries, jax.random.split(key)[1])

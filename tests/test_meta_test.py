@@ -50,7 +50,7 @@ def test_meta_testing_runs_of_one_configuration_compiles_once(runs):
                                       log=lambda _: None)  # fmt: skip
     assert len(meta_test._PROGRAMS) == 1
     (programs,) = meta_test._PROGRAMS.values()
-    for fn in (programs.adapt, programs.evaluate, programs.collect):
+    for fn in (programs.adapter.step, programs.evaluate, programs.collect):
         assert fn._cache_size() == 1
     assert other_alpha["tasks"] != shared["tasks"]  # the other weight trained another policy
     for name, result in (("sac_seed1", shared), ("sac_alpha0.2", other_alpha)):
@@ -144,10 +144,10 @@ def test_meta_test_sweeps_inner_step_alpha_and_refit_without_recompiling(runs):
         moved[beta, adapt_alpha, refit] = result["tasks"][0]["policy_distance_curve"][0]
     assert len(meta_test._PROGRAMS) == 1
     (programs,) = meta_test._PROGRAMS.values()
-    for fn in (programs.adapt, programs.evaluate, programs.collect):
+    for fn in (programs.adapter.step, programs.evaluate, programs.collect):
         assert fn._cache_size() == 1
     # the SAC inner step does not read the model: it is never refitted, so never compiled
-    assert programs.refit._cache_size() == 0
+    assert programs.adapter.parts["refit"]._cache_size() == 0
     meta_test._PROGRAMS.clear()
     base = moved[1e-3, None, True]
     # one inner step from the same policy on the same imagined data: distance is linear in beta

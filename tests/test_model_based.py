@@ -15,7 +15,7 @@ import pytest
 from minatt_jax import checkpoint, runner
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import make_train
+from minatt_jax.training import hyper_of, make_train
 
 
 @pytest.mark.parametrize(
@@ -27,7 +27,7 @@ def test_model_based_chunk_compiles_once(algo):
     config = with_overrides(PRESETS["smoke"], algo=algo, task_set="train", ma_alpha=1.0,
                             mb_meta_inner=inner, mb_meta_outer=outer)  # fmt: skip
     trainer = make_train(resolve(config))
-    state = trainer.init(jax.random.PRNGKey(0))
+    state = trainer.init(jax.random.PRNGKey(0), hyper_of(trainer.config))
     fits, holdouts, tasks = [], [], set()
     for _ in range(3):
         state, metrics = trainer.train_chunk(state)
@@ -52,7 +52,7 @@ def test_model_based_chunk_compiles_once(algo):
         )  # fmt: skip
         assert max(jax.tree.leaves(gap)) > 0
     # Another seed, same program.
-    trainer.train_chunk(trainer.init(jax.random.PRNGKey(7)))
+    trainer.train_chunk(trainer.init(jax.random.PRNGKey(7), hyper_of(trainer.config)))
     assert trainer.train_chunk._cache_size() == 1
 
 

@@ -21,9 +21,10 @@ import pytest
 import minatt_jax.envs as envs
 from minatt_jax import checkpoint, mujoco_engine, run_files
 from minatt_jax import normalizer as obs_norm
+from minatt_jax.agents.sac import learner
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import make_agent
+from minatt_jax.training import hyper_of
 
 pytest.importorskip("imageio", reason="the mujoco-engine extra (imageio) is not installed")
 
@@ -38,8 +39,8 @@ def _make_run(tmp_path, env_name: str, normalize: bool = True) -> str:
     run_dir = str(tmp_path / env_name)
     run_files.write_json_atomic(os.path.join(run_dir, "config.json"), config.to_dict())
     env = envs.make(env_name)
-    agent = make_agent(config, env)
-    actor = agent.init(jax.random.PRNGKey(3)).actor_params
+    agent = learner(config, env)
+    actor = agent.init(jax.random.PRNGKey(3), hyper_of(config)).actor_params
     # Large weights so the random policy's actions are far from zero.
     actor = jax.tree.map(lambda x: 2.0 * x, actor)
     rng = np.random.default_rng(0)

@@ -26,7 +26,7 @@ def test_non_editable_install_imports_envs(tmp_path):
             relative = os.path.relpath(folder, ROOT)
             assert (target / relative / "__init__.py").exists(), f"{relative} is not installed"
     code = (
-        "import minatt_jax.config, minatt_jax.dreamer.training; "
+        "import minatt_jax.config, minatt_jax.agents.dreamer; "
         "import minatt_jax.envs as e; env = e.make('hopper'); "
         "print(e.__file__); print(env.observation_size)"
     )

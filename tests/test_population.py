@@ -16,8 +16,10 @@ import pytest
 
 from minatt_jax import checkpoint, population, runner
 from minatt_jax import training as train_module
+from minatt_jax.agents.base import with_hyper
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.training import hyper_of
 
 ONE_CHUNK = with_overrides(PRESETS["smoke"], total_steps=300)
 
@@ -63,7 +65,9 @@ def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
     states, metrics = program.chunk(program.init())
     compiled = program.chunk._cache_size()  # 1, or more where this process ran other shapes
     alone = train_module.make_train(resolve(members[0]))  # alpha 0, seed 0, no MA terms at all
-    single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(0)))
+    single, single_metrics = alone.train_chunk(
+        alone.init(jax.random.PRNGKey(0), hyper_of(alone.config))
+    )
     for key in ("critic_loss", "actor_loss", "q_mean", "train_episode_return"):
         np.testing.assert_allclose(metrics[key][0], single_metrics[key], rtol=1e-4, err_msg=key)
     np.testing.assert_allclose(
@@ -74,12 +78,9 @@ def test_a_member_equals_its_single_run_and_sweeps_do_not_recompile():
     assert not np.allclose(metrics["actor_loss"][0], metrics["actor_loss"][2])
     # Other swept values (MA weight, learning rates) are data: the same program runs them.
     values = population.stack(
-        [
-            population.data_values(with_overrides(m, ma_alpha=0.3, sac_actor_lr=1e-3))
-            for m in members
-        ]  # fmt: skip
+        [hyper_of(with_overrides(m, ma_alpha=0.3, sac_actor_lr=1e-3)) for m in members]
     )
-    other = jax.vmap(population.with_data)(program.init(), values)
+    other = jax.vmap(with_hyper)(program.init(), values)
     program.chunk(other)
     assert program.chunk._cache_size() == compiled
 
@@ -99,7 +100,9 @@ def test_ma_modes_share_one_program_and_each_member_equals_its_single_run():
     assert program.chunk._cache_size() == 1
     for i in (1, 2):  # single-term modes (full and alpha-0 members: the test above)
         alone = train_module.make_train(resolve(members[i]))
-        single, single_metrics = alone.train_chunk(alone.init(jax.random.PRNGKey(0)))
+        single, single_metrics = alone.train_chunk(
+            alone.init(jax.random.PRNGKey(0), hyper_of(alone.config))
+        )
         for key in ("critic_loss", "actor_loss", "train_episode_return"):
             np.testing.assert_allclose(metrics[key][i], single_metrics[key], rtol=1e-4,
                                        err_msg=f"{modes[i]}: {key}")  # fmt: skip

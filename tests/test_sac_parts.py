@@ -67,8 +67,9 @@ def test_entropy_placement_charges_the_next_state_in_the_critic_target():
     """placement="entropy": the critic target loses gamma (1 - d) alpha penalty(s'), exactly the
     regularizer's per-state penalty at the next states; other placements leave the target alone."""
     from minatt_jax import min_attention as ma
-    from minatt_jax.config import SACConfig
+    from minatt_jax.config import SACConfig, TrainConfig
     from minatt_jax.sac import make_sac
+    from minatt_jax.training import hyper_of
 
     key = jax.random.PRNGKey(0)
     obs = jax.random.normal(key, (16, 4))
@@ -80,7 +81,7 @@ def test_entropy_placement_charges_the_next_state_in_the_critic_target():
     for placement in ("actor_loss", "entropy"):
         cfg = ma.MAConfig(alpha=5.0, placement=placement, mode="jacobian", subsample=0)
         sac = make_sac(4, 2, SACConfig(hidden=(8, 8)), cfg)
-        state = sac.init(jax.random.PRNGKey(1))
+        state = sac.init(jax.random.PRNGKey(1), hyper_of(TrainConfig(ma=cfg)))
         losses[placement] = float(sac.critic_step(state, batch, key)[1]["critic_loss"])
         pen = sac.regularizer.next_value_penalty(state.actor_params, batch.next_obs, key)
         if placement == "entropy":

@@ -20,7 +20,7 @@ from conftest import run_cli
 from minatt_jax import acting, checkpoint, runner
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import make_evaluator, summarize
-from minatt_jax.training import make_train
+from minatt_jax.training import hyper_of, make_train
 
 LEARN = dataclasses.replace(
     with_overrides(
@@ -33,7 +33,7 @@ LEARN = dataclasses.replace(
 
 def _train(config):
     trainer = make_train(resolve(config))
-    state = trainer.init(jax.random.PRNGKey(config.seed))
+    state = trainer.init(jax.random.PRNGKey(config.seed), hyper_of(config))
     while int(state.env_steps) < config.total_steps:
         state, _ = trainer.train_chunk(state)
     result = trainer.evaluate(state, jax.random.PRNGKey(1), trainer.task_set)
@@ -47,7 +47,7 @@ def test_sac_learns_and_ma_lowers_feedback():
     # One compiled program served every chunk, before and after warm-up.
     assert trainer.train_chunk._cache_size() == 1
     # Another seed runs in the same compiled program.
-    trainer.train_chunk(trainer.init(jax.random.PRNGKey(5)))
+    trainer.train_chunk(trainer.init(jax.random.PRNGKey(5), hyper_of(trainer.config)))
     assert trainer.train_chunk._cache_size() == 1
     # A random policy on the same 200-step episodes.
     env, policy = trainer.env, acting.random_policy(3)

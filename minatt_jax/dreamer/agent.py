@@ -59,8 +59,9 @@ class AgentState:
     opt_state: Any
     return_scale: dist.ReturnScale
     updates: jax.Array
-    alpha: jax.Array  # the MA weight (data: populations sweep it)
-    ma_terms: jax.Array  # the MA mode's (feedback, temporal) 0/1 weights (data, like alpha)
+    # The values a population sweeps, read by the losses: "alpha" (the MA weight) and
+    # "ma_terms" (the MA mode's (feedback, temporal) 0/1 weights).
+    hyper: dict[str, jax.Array]
 
 
 class Batch(NamedTuple):
@@ -81,7 +82,7 @@ class DreamerAgent(NamedTuple):
     world_model: WorldModel
     actor: Actor
     critic: Critic
-    init: Callable[[jax.Array, float], AgentState]
+    init: Callable[[jax.Array, dict[str, jax.Array]], AgentState]
     update: Callable[[AgentState, Batch, jax.Array], tuple[AgentState, dict]]
     initial_latent: Callable[[tuple[int, ...]], Latent]
     observe_step: Callable[..., tuple[Latent, jax.Array]]
@@ -93,6 +94,9 @@ class DreamerAgent(NamedTuple):
     imagine: Callable[..., dict]
     lambda_returns: Callable[..., jax.Array]
     policy: Callable[[dict, bool], acting.RecurrentPolicy]
+
+
+HYPER = {"alpha": "ma.alpha", "ma_terms": "ma.mode"}
 
 
 def adaptive_clip(clip: float, floor: float = 1e-3) -> optax.GradientTransformation:
@@ -143,7 +147,8 @@ def make_agent(
 
     regularizer = ma.make_regularizer(control, ma_config)
 
-    def init(key: jax.Array, alpha: float = 0.0) -> AgentState:
+    def init(key: jax.Array, hyper: dict[str, jax.Array]) -> AgentState:
+        """Fresh parameters; ``hyper`` (``HYPER``'s names) is required: none defaults."""
         k_wm, k_actor, k_critic = jax.random.split(key, 3)
         params = {
             "world_model": wm.init(k_wm, jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))),
@@ -157,8 +162,7 @@ def make_agent(
             opt_state=optimizer.init(params),
             return_scale=dist.ReturnScale.create(),
             updates=jnp.zeros((), jnp.int32),
-            alpha=jnp.asarray(alpha, jnp.float32),
-            ma_terms=jnp.asarray(ma.term_weights(ma_config.mode), jnp.float32),
+            hyper={k: jnp.asarray(v, jnp.float32) for k, v in hyper.items()},
         )
 
     def initial_latent(batch: tuple[int, ...]) -> Latent:
@@ -309,7 +313,8 @@ def make_agent(
             starts = traj["feat"][0]
             penalty, ma_metrics = regularizer.actor_penalty(
                 actor_params, starts, None, (k_ma, k_ma), prev_params=state.prev_actor,
-                update_step=state.updates, alpha=state.alpha, terms=state.ma_terms,
+                update_step=state.updates, alpha=state.hyper["alpha"],
+                terms=state.hyper["ma_terms"],
             )  # fmt: skip
             metrics = {"actor_loss": loss, "policy_entropy": jnp.mean(entropy),
                        "policy_std": jnp.mean(std), **ma_metrics}  # fmt: skip

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-
-from minatt_jax import stats
+import stats
 
 
 def test_bootstrap_interval_of_the_mean_matches_the_normal_approximation():

@@ -6,10 +6,9 @@ import glob
 import os
 import re
 
+import paper_numbers
 import pytest
-
-from minatt_jax import experiment_tables as xt
-from minatt_jax import paper_numbers
+import study as xt
 
 PAPER = glob.glob(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "paper", "*.tex"))
 
@@ -85,12 +84,9 @@ def test_reuse_reads_only_members_with_the_same_settings_at_every_stage(tmp_path
     """``--reuse`` takes another study's member only when its settings match (length and chunk
     length aside) and it was evaluated at every stage; the table reads it there, the provenance
     names the folder, and a missing folder exits 2."""
-    import sys
+    import ablation
 
     from minatt_jax.config import replace_fields
-
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
-    import ablation
 
     parser = ablation.build_parser()
     other = tmp_path / "meta_training"

@@ -10,7 +10,6 @@ import sys
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
 meta_training = importlib.import_module("meta_training")
 paper_claims = importlib.import_module("paper_claims")
 

@@ -1,10 +1,11 @@
-"""Shared pieces of the paper's experiment tables: stages, per-arm seed statistics, cells.
+"""The module the studies share (members -> population -> tables): stages, per-arm seed
+statistics, cells, records, provenance.
 
 The experiments under ``experiments/`` (reading study, meta-training and meta-testing tables,
 ablation, ensemble size) read their members' evaluation records at the paper's stages and
 summarize each arm over seeds the same way: mean +- std (ddof 0, as the paper's +- values)
 with the 95% bootstrap interval of the mean, and the difference from a baseline arm with its
-interval (``minatt_jax.stats``).
+interval (``stats``).
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+import paper_numbers
+import stats
 
-from minatt_jax import paper_numbers, run_files, runner, stats
+from minatt_jax import run_files, runner
 
 MIN_SEEDS = 5  # fewer seeds per arm: no verdict (a bootstrap over 2-4 values says little)
 

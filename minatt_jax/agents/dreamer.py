@@ -1,0 +1,269 @@
+"""``--algo dreamer``: DreamerV3 with minimum attention on the actor (``minatt_jax.dreamer``).
+
+One iteration, for all ``num_envs`` environments at once:
+
+1. **collect**: the posterior step of the RSSM on obs_t, then an action (uniform random during the
+   warm-up, the actor's sample after it); step the environments, except those whose episode ended
+   at obs_t: they reset instead and their next stored step is the reset observation with
+   is_first (DreamerV3's convention: the last observation of an episode is stored with its
+   reward, the reset counts as a step);
+2. **store** the step obs_t (the action before it, the reward on arriving at it, is_first,
+   1 - terminal) in each environment's ring of the sequence replay;
+3. **update**: after the warm-up, ``updates_per_iteration`` updates on (B, T) sequences, or one
+   update every ``iterations_per_update`` iterations when the train ratio asks for fewer than one
+   per iteration (train ratio = replayed steps per env step = updates x B x T / env steps).
+
+Warm-up and the update schedule are ``lax.cond``s on the unbatched step counter; resets run under
+a ``lax.cond`` only when some episode ended. Evaluation runs deterministic episodes of the
+recurrent policy (``DreamerAgent.policy``: posterior mode, tanh(mean)), the feedback norm with
+respect to the observation (``DreamerAgent.observation_control``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from brax.envs.base import State as EnvState
+from flax import struct
+
+from minatt_jax import acting
+from minatt_jax.agents import registry
+from minatt_jax.agents.base import Adapter, Agent, PolicyFamily, abstract_hyper
+from minatt_jax.dreamer.agent import HYPER, AgentState, Batch, DreamerAgent, Latent, make_agent
+from minatt_jax.dreamer.replay import (
+    SequenceReplay,
+    episode_sequences,
+    sample_episode_sequences,
+)
+from minatt_jax.replay import select_rows
+
+
+@struct.dataclass
+class DreamerCollector:
+    """The environments, what is stored for their current step, and the policy's latents."""
+
+    env_state: EnvState
+    step: Batch  # (envs, ...) the current step's entry: obs, prev_action, reward, is_first, cont
+    ended: jax.Array  # (envs,) the current step ends its episode: the next step resets
+    latent: Latent  # (envs, ...)
+    episode_return: jax.Array
+    episode_length: jax.Array
+
+
+@struct.dataclass
+class DreamerTrainState:
+    """Everything a DreamerV3 run needs to continue exactly (saved whole in checkpoints)."""
+
+    agent: AgentState
+    collector: DreamerCollector
+    replay: SequenceReplay
+    rng: jax.Array
+    env_steps: jax.Array
+
+    def parameter_groups(self) -> dict[str, Any]:
+        """The parameters checked for non-finite values after every chunk."""
+        params = self.agent.params
+        names = {"world model": "world_model", "actor": "actor", "critic": "critic"}
+        return {f"{label} parameters": params[key] for label, key in names.items()}
+
+    def policy_items(self) -> tuple[Any, Any]:
+        """What a policy snapshot holds: the world model and the actor (it acts on latents),
+        and no observation normalizer (DreamerV3 reads symlog observations)."""
+        params = self.agent.params
+        return {"world_model": params["world_model"], "actor": params["actor"]}, {}
+
+
+def update_schedule(config: Any) -> tuple[int, int]:
+    """(updates per iteration, iterations per update): the train ratio rounded to whole
+    updates per iteration, or to one update every k iterations when it asks for less."""
+    d = config.dreamer
+    per_iteration = d.train_ratio * config.num_envs / (d.batch_size * d.batch_length)
+    if per_iteration >= 1:
+        return int(round(per_iteration)), 1
+    return 1, int(round(1.0 / per_iteration))
+
+
+def learner(config: Any, env: Any) -> DreamerAgent:
+    """The DreamerV3 learner of a (resolved) configuration for ``env``."""
+    return make_agent(env.observation_size, env.action_size, config.dreamer, config.ma)
+
+
+def _zeros(tree: Any) -> Any:
+    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), tree)
+
+
+def policy_family(config: Any, env: Any) -> PolicyFamily:
+    """The recurrent world-model policy: the world model and the actor (no normalizer)."""
+    agent = learner(config, env)
+    params = _zeros(jax.eval_shape(agent.init, jax.random.PRNGKey(0),
+                                   abstract_hyper(HYPER)).params)  # fmt: skip
+    names = ("world_model", "actor")
+    return PolicyFamily(
+        agent=agent,
+        like=({name: params[name] for name in names}, {}),
+        checkpoint_items={f"agent/params/{name}": params[name] for name in names},
+        from_items=lambda parts: ({n: parts[f"agent/params/{n}"] for n in names}, {}),
+        deterministic=lambda p, norm: agent.policy(p, False),
+        stochastic=lambda p, norm: agent.policy(p, True),
+        recurrent=True,
+    )
+
+
+def make(config: Any, env: Any, task_set: Any) -> Agent:
+    """The dreamer agent of a resolved configuration (see the module docstring)."""
+    d = config.dreamer
+    obs_size, act_size, n = env.observation_size, env.action_size, config.num_envs
+    agent = learner(config, env)
+    capacity = max(config.buffer_size // n, d.batch_length)
+    updates_per_iteration, iterations_per_update = update_schedule(config)
+    iterations = config.eval_every // n
+    bt = d.batch_size * d.batch_length
+    # Updates need a full sequence in the rings; the warm-up (random actions) usually covers it.
+    ready_at = max(config.warmup_steps, d.batch_length * n)
+
+    def reset_envs(key: jax.Array) -> EnvState:
+        return acting.reset_with_tasks(env, task_set, n, key)
+
+    def first_step(env_state: EnvState) -> Batch:
+        zeros = jnp.zeros((n,), jnp.float32)
+        return Batch(env_state.obs, jnp.zeros((n, act_size)), zeros, jnp.ones((n,)), zeros + 1)
+
+    def init(key: jax.Array, hyper: dict) -> DreamerTrainState:
+        k_agent, k_env, rng = jax.random.split(key, 3)
+        env_state = reset_envs(k_env)
+        zeros = jnp.zeros((n,), jnp.float32)
+        collector = DreamerCollector(env_state, first_step(env_state), zeros > 1,
+                                     agent.initial_latent((n,)), zeros, zeros)  # fmt: skip
+        return DreamerTrainState(
+            agent=agent.init(k_agent, hyper), collector=collector,
+            replay=SequenceReplay.create(n, capacity, obs_size, act_size), rng=rng,
+            env_steps=jnp.zeros((), jnp.int32),
+        )  # fmt: skip
+
+    def collect(ts: DreamerTrainState, keys: dict, steps: jax.Array,
+                members_axis: str | None = None):  # fmt: skip
+        """One env step of every environment; the step to store is the current one (obs_t)."""
+        k_obs, k_act, k_random, k_reset = jax.random.split(keys["collect"], 4)
+        col = ts.collector
+        params = ts.agent.params
+        latent = agent.observe(params["world_model"], col.latent, col.step.obs,
+                               col.step.prev_action, col.step.is_first, k_obs)  # fmt: skip
+        policy_action = agent.act(params["actor"], latent, k_act)
+        random_action = jax.random.uniform(k_random, (n, act_size), minval=-1.0, maxval=1.0)
+        action = jnp.where(steps < config.warmup_steps, random_action, policy_action)
+        stepped = jax.vmap(env.step)(col.env_state, action)
+        length = col.episode_length + 1
+        finite = jnp.isfinite(stepped.reward) & jnp.all(jnp.isfinite(stepped.obs), -1)
+        ended_next = (stepped.done > 0) | (length >= config.max_episode_steps) | ~finite
+        env_state = acting.reset_ended(col.ended, reset_envs, stepped, k_reset, members_axis)
+        reward = jnp.where(finite, stepped.reward, 0.0)
+        nxt = Batch(
+            obs=jnp.where(finite[:, None], stepped.obs, col.step.obs), prev_action=action,
+            reward=reward, is_first=jnp.zeros((n,)), cont=1.0 - stepped.done,
+        )  # fmt: skip
+        step = select_rows(col.ended, first_step(env_state), nxt)
+        finished = ended_next & ~col.ended  # episodes that ended at this step
+        finished_return = jnp.where(finished, col.episode_return + reward, 0.0)
+        collector = DreamerCollector(
+            env_state=env_state, step=step, ended=jnp.where(col.ended, False, ended_next),
+            latent=latent,
+            episode_return=jnp.where(col.ended | ended_next, 0.0, col.episode_return + reward),
+            episode_length=jnp.where(col.ended, 0, length),
+        )  # fmt: skip
+        metrics = {"train_episode_return": jnp.sum(finished_return), "episodes": jnp.sum(finished),
+                   "env_non_finite_resets": jnp.sum(~finite & ~col.ended)}  # fmt: skip
+        return ts.replace(collector=collector), col.step, metrics
+
+    def store(ts: DreamerTrainState, step: Batch) -> DreamerTrainState:
+        return ts.replace(replay=ts.replay.add(step))
+
+    def updates(
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+    ) -> tuple[AgentState, dict]:
+        """The iteration's updates; only the agent state comes back (the replay is read)."""
+
+        def one(state, k):
+            k_sample, k_update = jax.random.split(k)
+            batch = replay.sample(k_sample, d.batch_size, d.batch_length)
+            return agent.update(state, batch, k_update)
+
+        agent_state, metrics = jax.lax.scan(
+            one, agent_state, jax.random.split(key, updates_per_iteration)
+        )
+        return agent_state, jax.tree.map(jnp.sum, metrics)
+
+    def no_updates(
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+    ) -> tuple[AgentState, dict]:
+        shapes = jax.eval_shape(updates, agent_state, replay, key)[1]
+        return agent_state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+    def update(ts: DreamerTrainState, keys: dict, steps_after: jax.Array):
+        steps = steps_after - n
+        due = (steps + n >= ready_at) & ((steps // n) % iterations_per_update == 0)
+        agent_state, update_metrics = jax.lax.cond(
+            due, updates, no_updates, ts.agent, ts.replay, keys["update"]
+        )
+        count = jnp.where(due, updates_per_iteration, 0)
+        return ts.replace(agent=agent_state), {**update_metrics, "updates": count}
+
+    def summarize(ts: DreamerTrainState, per_iteration: dict) -> dict:
+        totals = jax.tree.map(lambda x: jnp.sum(x, 0), per_iteration)
+        done = jnp.maximum(totals.pop("updates"), 1)
+        episodes = totals.pop("episodes")
+        summary = {k: v / done for k, v in totals.items()
+                   if k not in ("train_episode_return", "env_non_finite_resets")}  # fmt: skip
+        summary["train_episode_return"] = totals["train_episode_return"] / jnp.maximum(episodes, 1)
+        summary["env_non_finite_resets"] = totals["env_non_finite_resets"]
+        summary["updates"] = jnp.sum(per_iteration["updates"])
+        summary["train_ratio"] = summary["updates"] * bt / (iterations * n)
+        return summary
+
+    return Agent(keys=("collect", "update"), init=init, collect=collect, store=store,
+                 update=update, summarize=summarize, policy=policy_family(config, env),
+                 parts={"agent": agent})  # fmt: skip
+
+
+def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapter:
+    """DreamerV3's meta-test step: ``updates_per_step`` updates (world model, actor, critic, MA
+    included) on windows of the run's sequence length sampled from the collected episodes."""
+    agent_fns, d = family.agent, config.dreamer
+    shapes = jax.eval_shape(agent_fns.init, jax.random.PRNGKey(0), abstract_hyper(HYPER))
+
+    def prepare(parts: dict, normalizer: Any, traj: acting.Trajectory, key: jax.Array,
+                refit: bool) -> Any:  # fmt: skip
+        return episode_sequences(traj)
+
+    @jax.jit
+    def step(agent: Any, context: Any, key: jax.Array) -> Any:
+        episodes, lengths = context
+
+        def one(agent, k):
+            k_batch, k_update = jax.random.split(k)
+            batch = sample_episode_sequences(episodes, lengths, k_batch, d.batch_size,
+                                             d.batch_length)  # fmt: skip
+            return agent_fns.update(agent, batch, k_update)[0], None
+
+        return jax.lax.scan(one, agent, jax.random.split(key, settings.updates_per_step))[0]
+
+    def policy_params(agent: Any) -> dict:
+        return {"world_model": agent.params["world_model"], "actor": agent.params["actor"]}
+
+    return Adapter(like={"agent": _zeros(shapes)}, prepare=prepare, step=step,
+                   policy_params=policy_params)  # fmt: skip
+
+
+SPEC = registry.register(
+    registry.AgentSpec(
+        name="dreamer",
+        make=make,
+        policy=policy_family,
+        hyper=HYPER,
+        defaults=lambda config: {"task_set": "nominal", "updates_per_step": 1},
+        adapter=adapter,
+        recurrent=True,
+    )
+)
