@@ -27,9 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from minatt_jax import min_attention as ma
-from minatt_jax.config import SACConfig
+from minatt_jax.config import SACConfig, TrainConfig
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import make_sac
+from minatt_jax.training import hyper_of
 
 OBS, ACT, BATCH = 11, 3, 256
 RESULTS = os.path.join(os.path.dirname(__file__), "results")
@@ -74,7 +75,8 @@ def make_runner(ma_config: ma.MAConfig, updates: int):
         state, _ = jax.lax.scan(one, state, jax.random.split(key, updates))
         return state
 
-    return sac, sac.init(jax.random.PRNGKey(0)), run
+    hyper = hyper_of(TrainConfig(sac=SACConfig(), ma=ma_config))
+    return sac, sac.init(jax.random.PRNGKey(0), hyper), run
 
 
 def estimator_error(sac, params, config: ma.MAConfig, draws: int) -> dict[str, float]:

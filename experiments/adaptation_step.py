@@ -19,7 +19,8 @@ import os
 import numpy as np
 import study as xt
 
-from minatt_jax import meta_test, plots, runner
+from minatt_jax import meta_test, runner
+from minatt_jax.analysis import plots
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 

@@ -23,7 +23,8 @@ import numpy as np
 import paper_numbers
 import study as xt
 
-from minatt_jax import plots, population
+from minatt_jax import population
+from minatt_jax.analysis import plots
 from minatt_jax.config import resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -19,7 +19,8 @@ import re
 
 import numpy as np
 
-from minatt_jax import report, runner
+from minatt_jax import runner
+from minatt_jax.analysis import report
 from minatt_jax.config import PRESETS, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(__file__), "results")

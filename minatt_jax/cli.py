@@ -578,7 +578,7 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     path = os.path.join(out, f"meta_test_{variant}.json")
     _write_json_atomic(path, result)
     png = os.path.join(out, f"meta_test_{variant}.png")
-    from minatt_jax.plots import plot_meta_test
+    from minatt_jax.analysis.plots import plot_meta_test
 
     plot_meta_test(result, png)
     if args.json:
@@ -595,7 +595,7 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
 
 def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
-    from minatt_jax.report import AnalyzeConfig, analyze
+    from minatt_jax.analysis.report import AnalyzeConfig, analyze
 
     settings = AnalyzeConfig(
         episodes=args.episodes, bins=args.bins, grid=args.grid, grid_rollouts=args.grid_rollouts,

@@ -35,8 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from minatt_jax import control_analysis
 from minatt_jax import min_attention as ma
+from minatt_jax.analysis import control_analysis
 
 
 class Policy(nn.Module):

@@ -7,10 +7,11 @@
 # %% [markdown]
 # # Analysis: heatmaps, K(t) x + v(t), the failure grid and the HTML report
 #
-# `minatt_jax.report.analyze` (the `minatt-jax analyze` command) reads run directories (single
-# runs or population members), groups them by configuration and writes figures, tables and one
-# self-contained `report.html`. Here on two short Hopper SAC runs, alpha 0 and 1. `SMOKE=1` takes
-# a few minutes on a CPU; a GPU shortens the failure grid's thousands of rollouts most.
+# `minatt_jax.analysis.report.analyze` (the `minatt-jax analyze` command) reads run directories
+# (single runs or population members), groups them by configuration and writes figures, tables
+# and one self-contained `report.html`. Here on two short Hopper SAC runs, alpha 0 and 1.
+# `SMOKE=1` takes a few minutes on a CPU; a GPU shortens the failure grid's thousands of rollouts
+# most.
 
 # %% Install (Colab): the package, when it is not importable yet.
 import importlib.util
@@ -38,7 +39,7 @@ for alpha in (0.0, 1.0):
                          resume=os.path.exists(f"{out}/config.json")))  # fmt: skip
 
 # %% Analyze
-from minatt_jax.report import AnalyzeConfig, analyze
+from minatt_jax.analysis.report import AnalyzeConfig, analyze
 
 settings = AnalyzeConfig(
     episodes=2 if SMOKE else 5, bins=8 if SMOKE else 20, grid=3 if SMOKE else 9,

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from minatt_jax import acting
-from minatt_jax import control_analysis as ca
+from minatt_jax.analysis import control_analysis as ca
 from minatt_jax.config import SACConfig, TrainConfig
 from minatt_jax.min_attention import MAConfig
 from minatt_jax.sac import make_sac

@@ -153,3 +153,21 @@ def test_trpo_outer_step_stays_in_the_trust_region():
     new_obj = meta.meta_loss(new_agent.actor_params, moved, supports, queries, k_actor)[0]
     assert float(new_obj) < float(old_obj)
     del before
+
+
+def test_the_inner_step_size_cannot_default():
+    """beta lives in the learner's hyper values alone: a learner built without it cannot adapt
+    (no silent beta = 0), and the training program refuses hyper values that lack it."""
+    from minatt_jax.agents import registry
+    from minatt_jax.agents.base import check_hyper
+
+    sac = make_sac(OBS, ACT, SACConfig(hidden=(8, 8)), MAConfig(alpha=1.0, subsample=0))
+    hyper = _hyper(1.0, 0.1)
+    del hyper["inner_lr"]
+    agent = sac.init(jax.random.PRNGKey(0), hyper)
+    _, _, meta, supports, _ = _setup(0.1, False, x64=False)
+    with pytest.raises(KeyError, match="inner_lr"):
+        meta.adapt(agent.actor_params, agent, _task(supports, 0), jax.random.PRNGKey(1))
+    with pytest.raises(ValueError, match="missing inner_lr"):
+        check_hyper(registry.get("mbmpo"), hyper)
+    check_hyper(registry.get("mbmpo"), _hyper(1.0, 0.1))  # complete: accepted

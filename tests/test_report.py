@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
+from minatt_jax.analysis.report import FIGURES, Run, aggregate_tables, tables_markdown
 from minatt_jax.cli import main as _main
 from minatt_jax.config import PRESETS, with_overrides
-from minatt_jax.report import FIGURES, Run, aggregate_tables, tables_markdown
 
 # One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("test_report")
@@ -118,7 +118,8 @@ def test_analyze_bad_input_exit_2(smoke_runs, tmp_path, capsys):
 def test_figures_and_text_files_use_a_unique_temporary_name(tmp_path):
     """Two processes writing one figure (two experiment lanes did) must not share a temporary
     file: each write goes through its own, and none is left behind."""
-    from minatt_jax import plots, runner
+    from minatt_jax import runner
+    from minatt_jax.analysis import plots
 
     plt = plots._pyplot()
     target = str(tmp_path / "curves.png")

@@ -95,6 +95,31 @@ def test_killed_run_resumes_exactly(tmp_path):
     assert runner.without_timings(a) == runner.without_timings(b)
 
 
+@pytest.mark.slow
+def test_a_run_stopped_before_its_first_checkpoint_resumes_with_its_own_values(tmp_path, capsys):
+    """A stop during compilation leaves config.json alone; the resume it advises trains with the
+    run's own alpha and learning rates (the state's hyper values come from the run's config on
+    every path), and writes exactly the uninterrupted run's records."""
+    from conftest import run_cli
+
+    argv = ["train", "--preset", "smoke", "--steps", "300", "--alpha", "0.5",
+            "--set", "sac.actor_lr=1e-3"]  # fmt: skip
+    straight, stopped = str(tmp_path / "straight"), str(tmp_path / "stopped")
+    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
+    config = runner.load_config(straight)
+    os.makedirs(stopped)
+    runner.write_json_atomic(os.path.join(stopped, "config.json"), config.to_dict())
+    assert run_cli(["train", "--out", stopped, "--resume"], capsys)[0] == 0
+    a, b = runner.read_metrics(straight), runner.read_metrics(stopped)
+    assert len(a) == 1 and runner.without_timings(a) == runner.without_timings(b)
+    # and the state trained with the run's values, not defaults
+    trainer = make_train(config)
+    other = hyper_of(with_overrides(config, ma_alpha=0.1, sac_actor_lr=0.1))
+    state = checkpoint.restore(stopped, trainer.init(jax.random.PRNGKey(9), other))[1]
+    assert float(state.agent.hyper["alpha"]) == 0.5
+    assert float(state.agent.hyper["actor_lr"]) == np.float32(1e-3)
+
+
 def test_runs_of_one_program_share_a_process_compiled_step(tmp_path, capsys):
     """A second run in the process that differs in seed, MA weight and length traces and
     compiles nothing, and writes the metrics of the same run built from scratch."""

@@ -34,10 +34,10 @@ import numpy as np
 
 import minatt_jax.envs as envs
 from minatt_jax import acting, checkpoint, runner
-from minatt_jax import control_analysis as ca
 from minatt_jax.agents import registry
+from minatt_jax.analysis import control_analysis as ca
+from minatt_jax.analysis.plots import _pyplot, save_figure
 from minatt_jax.config import TrainConfig
-from minatt_jax.plots import _pyplot, save_figure
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
