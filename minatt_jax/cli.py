@@ -10,7 +10,6 @@ import argparse
 import json
 import os
 import sys
-import time
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -272,12 +271,8 @@ def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
-
     import minatt_jax.envs as envs
-    from minatt_jax import acting
+    from minatt_jax.evaluation import baseline_rollouts
 
     if args.out:
         _check_out_file(args.out)
@@ -287,54 +282,16 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
         tasks, labels = envs.resolve_tasks(env, args.variant, args.task)
     except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise UserError(str(e)) from None
-    task_set = envs.stack_tasks(tasks)
-    make_policy = acting.random_policy if args.policy == "random" else acting.zero_policy
-    policy = make_policy(env.action_size)
-
-    def rollout(key, task):
-        key_reset, key_policy = jax.random.split(key)
-        traj = acting.unroll(env, policy, env.reset(key_reset, task), args.steps, key=key_policy)
-        alive = traj.alive
-        return {
-            "return": jnp.sum(alive * traj.reward),
-            "length": jnp.sum(alive),
-            "forward_reward": jnp.sum(alive * traj.env_metrics["reward_forward"]),
-            "ctrl_reward": jnp.sum(alive * traj.env_metrics["reward_ctrl"]),
-        }
-
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), len(tasks))
     print(f"compiling {args.env} rollout ({len(tasks)} tasks x {args.steps} steps) ...", flush=True)
-    t0 = time.perf_counter()
-    compiled = jax.jit(jax.vmap(rollout)).lower(keys, task_set).compile()
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    result = jax.device_get(jax.block_until_ready(compiled(keys, task_set)))
-    run_s = time.perf_counter() - t0
-    steps_per_s = len(tasks) * args.steps / run_s
-    rows = [
-        {
-            "task": label,
-            "return": float(result["return"][i]),
-            "length": int(result["length"][i]),
-            "forward_reward": float(result["forward_reward"][i]),
-            "ctrl_reward": float(result["ctrl_reward"][i]),
-        }
-        for i, label in enumerate(labels)
-    ]
-    summary = {
-        "env": args.env,
-        "variant": args.variant if not args.task else ";".join(labels),
-        "policy": args.policy,
-        "steps": args.steps,
-        "seed": args.seed,
-        "physics": args.physics or env.default_physics,
-        "compile_s": compile_s,
-        "run_s": run_s,
-        "env_steps_per_s": steps_per_s,
-        "physics_steps_per_s": steps_per_s * env.frame_skip,
-        "mean_return": float(np.mean(result["return"])),
-        "tasks": rows,
-    }
+    result = baseline_rollouts(env, tasks, labels, args.policy, args.steps, args.seed)
+    summary = {"env": args.env, "variant": args.variant if not args.task else ";".join(labels),
+               "policy": args.policy, "steps": args.steps, "seed": args.seed,
+               "physics": args.physics or env.default_physics, **result}  # fmt: skip
+    rows, steps_per_s, compile_s = (
+        summary["tasks"],
+        summary["env_steps_per_s"],
+        summary["compile_s"],
+    )
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
