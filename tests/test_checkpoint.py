@@ -47,7 +47,7 @@ def test_items_are_listed_by_key_path(run, capsys):
 
 def test_load_policy_needs_no_trainer(run, monkeypatch):
     state_like = train_module.make_train(resolve(runner.load_config(run))).init(
-        jax.random.PRNGKey(0)
+        jax.random.PRNGKey(0), hyper_of(runner.load_config(run))
     )
     _, full = checkpoint.restore(run, state_like)
 

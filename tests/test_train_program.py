@@ -6,6 +6,7 @@ import json
 import os
 import pathlib
 import platform
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +22,9 @@ from minatt_jax.sac import make_sac
 from minatt_jax.training import hyper_of, make_train
 
 DATA = pathlib.Path(__file__).parent / "data"
+sys.path.insert(0, str(DATA))
+
+from record_golden import cpu_flags  # noqa: E402 - from tests/data
 
 
 @pytest.mark.slow
@@ -99,17 +103,6 @@ def test_reward_normalization_tracks_the_discounted_return_and_scales_batches():
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=2e-4, atol=1e-6)
 
 
-def _cpu_flags() -> list[str]:
-    try:
-        text = open("/proc/cpuinfo").read()
-    except OSError:
-        return []
-    line = next((x for x in text.splitlines() if x.startswith("flags")), "")
-    have = set(line.split(":", 1)[-1].split())
-    return sorted(f for f in ("avx", "avx2", "fma", "avx512f", "avx512_bf16", "amx_tile")
-                  if f in have)  # fmt: skip
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name",  # the MA/normalization/OU run takes every step the plain one takes: CI runs it alone
@@ -122,7 +115,7 @@ def test_smoke_numbers_are_kept(name, tmp_path, capsys):
     sweep them) changed float rounding, by at most 5e-4 relative after 600 steps. Compared where
     the platform matches the recording: XLA's CPU code depends on the instruction set."""
     reference = json.loads((DATA / f"reference_smoke_{name}.json").read_text())
-    here = (jax.__version__, platform.machine(), _cpu_flags())
+    here = (jax.__version__, platform.machine(), cpu_flags())
     there = (reference["jax"], reference["machine"], reference["cpu_flags"])
     if here != there:
         pytest.skip(f"reference recorded on {there}, this platform is {here}")
