@@ -177,7 +177,9 @@ def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
     assert all(np.isfinite(float(v)) for v in metrics.values())
     assert float(metrics["ma_feedback"]) > 0 and int(new.updates) == 2
     # alpha is data: the same program with alpha 0 leaves the actor's gradient without MA.
-    off, metrics_off = update(state.replace(alpha=jnp.zeros(())), batch, jax.random.PRNGKey(4))
+    off, metrics_off = update(
+        state.replace(hyper={**state.hyper, "alpha": jnp.zeros(())}), batch, jax.random.PRNGKey(4)
+    )
     assert float(metrics_off["ma_penalty"]) == 0.0
     assert update._cache_size() == 1
     pairs = zip(jax.tree.leaves(off.params["actor"]), jax.tree.leaves(new.params["actor"]),

@@ -119,7 +119,10 @@ def test_ma_modes_share_one_program_and_each_member_equals_its_single_run():
 @pytest.mark.slow
 def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
     calls = []
-    real_make = train_module.make_ensemble
+    from minatt_jax import acting
+    from minatt_jax.agents import mbpo
+
+    real_make = mbpo.make_ensemble
 
     def counting(*args, **kwargs):
         ensemble = real_make(*args, **kwargs)
@@ -130,15 +133,15 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
 
         return ensemble._replace(fit=fit)
 
-    monkeypatch.setattr(train_module, "make_ensemble", counting)
+    monkeypatch.setattr(mbpo, "make_ensemble", counting)
     resets = []
-    real_reset = train_module.acting.reset_with_tasks
+    real_reset = acting.reset_with_tasks
 
     def counting_reset(*args):
         jax.debug.callback(lambda: resets.append(1))
         return real_reset(*args)
 
-    monkeypatch.setattr(train_module.acting, "reset_with_tasks", counting_reset)
+    monkeypatch.setattr(acting, "reset_with_tasks", counting_reset)
     monkeypatch.setattr(runner, "_TRAINERS", collections.OrderedDict())  # build with the counters
     members = population.expand(with_overrides(ONE_CHUNK, algo="mbpo"), [0, 1, 2], [])
     program = population.Program(members)

@@ -20,7 +20,7 @@ from conftest import run_cli
 from minatt_jax import acting, checkpoint, runner
 from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
 from minatt_jax.evaluation import make_evaluator, summarize
-from minatt_jax.training import hyper_of, make_train
+from minatt_jax.training import hyper_of, make_train, program_key
 
 LEARN = dataclasses.replace(
     with_overrides(
@@ -141,7 +141,9 @@ def test_runs_of_one_program_share_a_process_compiled_step(tmp_path, capsys):
     ]
     status, io = run_cli([*argv, "--out", second], capsys)
     assert status == 0 and "reusing the training step compiled" in io.out
-    assert len(runner._TRAINERS) == 1 and runner._TRAINERS[trainer.config][1] is compiled
+    assert (
+        len(runner._TRAINERS) == 1 and runner._TRAINERS[program_key(trainer.config)][1] is compiled
+    )
     runner._TRAINERS.clear()  # the same run again, with its own trainer
     status, io = run_cli([*argv, "--out", scratch], capsys)
     assert status == 0 and "compiled the training step in" in io.out

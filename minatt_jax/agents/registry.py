@@ -67,7 +67,7 @@ def register(spec: AgentSpec) -> AgentSpec:
 
 def names() -> list[str]:
     """Every algorithm name: the built-in ones and those registered since."""
-    return sorted(set(BUILTIN) | set(_SPECS))
+    return [*BUILTIN, *sorted(set(_SPECS) - set(BUILTIN))]
 
 
 def get(name: str) -> AgentSpec:
