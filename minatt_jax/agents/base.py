@@ -107,6 +107,11 @@ def hyper_values(spec: AgentSpec, config: Any) -> dict[str, np.ndarray]:
     return values
 
 
+def zeros_like_shapes(tree: Any) -> Any:
+    """Numpy zeros in the shapes and dtypes of ``tree`` (checkpoint templates)."""
+    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), tree)
+
+
 def abstract_hyper(names: Any) -> dict[str, jax.Array]:
     """Zeros in the shapes of hyper values named ``names`` (templates: shapes, never values)."""
     return {k: jax.numpy.zeros((2,) if k == "ma_terms" else ()) for k in names}

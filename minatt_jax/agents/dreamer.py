@@ -25,13 +25,18 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from brax.envs.base import State as EnvState
 from flax import struct
 
 from minatt_jax import acting
 from minatt_jax.agents import registry
-from minatt_jax.agents.base import Adapter, Agent, PolicyFamily, abstract_hyper
+from minatt_jax.agents.base import (
+    Adapter,
+    Agent,
+    PolicyFamily,
+    abstract_hyper,
+    zeros_like_shapes,
+)
 from minatt_jax.dreamer.agent import HYPER, AgentState, Batch, DreamerAgent, Latent, make_agent
 from minatt_jax.dreamer.replay import (
     SequenceReplay,
@@ -91,14 +96,10 @@ def learner(config: Any, env: Any) -> DreamerAgent:
     return make_agent(env.observation_size, env.action_size, config.dreamer, config.ma)
 
 
-def _zeros(tree: Any) -> Any:
-    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), tree)
-
-
 def policy_family(config: Any, env: Any) -> PolicyFamily:
     """The recurrent world-model policy: the world model and the actor (no normalizer)."""
     agent = learner(config, env)
-    params = _zeros(jax.eval_shape(agent.init, jax.random.PRNGKey(0),
+    params = zeros_like_shapes(jax.eval_shape(agent.init, jax.random.PRNGKey(0),
                                    abstract_hyper(HYPER)).params)  # fmt: skip
     names = ("world_model", "actor")
     return PolicyFamily(
@@ -252,7 +253,7 @@ def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapt
     def policy_params(agent: Any) -> dict:
         return {"world_model": agent.params["world_model"], "actor": agent.params["actor"]}
 
-    return Adapter(like={"agent": _zeros(shapes)}, prepare=prepare, step=step,
+    return Adapter(like={"agent": zeros_like_shapes(shapes)}, prepare=prepare, step=step,
                    policy_params=policy_params)  # fmt: skip
 
 

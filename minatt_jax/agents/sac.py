@@ -22,14 +22,19 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from brax.envs.base import State as EnvState
 from flax import struct
 
 from minatt_jax import acting, replay
 from minatt_jax import normalizer as obs_norm
 from minatt_jax.agents import registry
-from minatt_jax.agents.base import Adapter, Agent, PolicyFamily, abstract_hyper
+from minatt_jax.agents.base import (
+    Adapter,
+    Agent,
+    PolicyFamily,
+    abstract_hyper,
+    zeros_like_shapes,
+)
 from minatt_jax.evaluation import deterministic_of
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import HYPER, SAC, make_sac
@@ -95,15 +100,11 @@ def learner(config: Any, env: Any) -> SAC:
     return make_sac(env.observation_size, env.action_size, config.sac, config.ma, config.caps)
 
 
-def _zeros(tree: Any) -> Any:
-    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), tree)
-
-
 def policy_family(config: Any, env: Any) -> PolicyFamily:
     """The feedforward tanh-Gaussian actor on (optionally normalized) observations."""
     sac = learner(config, env)
     shapes = jax.eval_shape(sac.init, jax.random.PRNGKey(0), abstract_hyper(HYPER))
-    actor = _zeros(shapes.actor_params)
+    actor = zeros_like_shapes(shapes.actor_params)
     norm = obs_norm.init_normalizer(env.observation_size)
     normalize = config.sac.normalize_obs
     return PolicyFamily(
@@ -329,7 +330,7 @@ def learner_items(config: Any, sac: SAC, hyper_names: Any) -> dict[str, Any]:
     """The checkpoint items of the learner alone (templates), for a meta-test: the agent, and
     the return statistics its rewards were scaled by."""
     shapes = jax.eval_shape(sac.init, jax.random.PRNGKey(0), abstract_hyper(hyper_names))
-    like = {"agent": _zeros(shapes)}
+    like = {"agent": zeros_like_shapes(shapes)}
     if config.sac.normalize_reward:
         like["data/return_stats"] = obs_norm.init_normalizer(1)
     return like
