@@ -13,6 +13,8 @@
   collection, the report's rollouts, the failure grid and ``minatt-jax rollout`` all use it.
   Episodes that end early keep stepping (fixed shapes) and ``alive`` masks what follows.
 * ``episode_metrics``: the paper's per-episode metrics of a trajectory.
+* ``step_envs``: one step of the training environments and which episodes it ends (the episode
+  rule every collector shares); ``reset_ended`` resets the ended ones on newly drawn tasks.
 * ``collect_step``: one step of the training environments with the episode bookkeeping (returns,
   lengths, the step limit, resets with a newly drawn task).
 """
@@ -240,6 +242,29 @@ def reset_ended(
     return select_rows(ended, fresh, env_state)
 
 
+class EnvStep(NamedTuple):
+    """Every training environment stepped once, with its episode's end decided."""
+
+    next_state: EnvState  # the stepped states (ended episodes not yet reset)
+    length: jax.Array  # (num_envs,) episode lengths after the step
+    finite: jax.Array  # (num_envs,) bool: the step's observation and reward are finite
+    ended: jax.Array  # (num_envs,) bool: terminated, reached the step limit, or non-finite
+
+
+def step_envs(
+    env: Any, env_state: EnvState, action: jax.Array, episode_length: jax.Array,
+    max_episode_steps: int,
+) -> EnvStep:  # fmt: skip
+    """Steps every environment and decides which episodes end: termination, the step limit, or
+    a simulator state gone non-finite (whose step is not to be learned from). The one episode
+    rule of every collector (``collect_step``; DreamerV3's, which stores the reset as a step)."""
+    next_state = jax.vmap(env.step)(env_state, action)
+    length = episode_length + 1
+    finite = jnp.all(jnp.isfinite(next_state.obs), -1) & jnp.isfinite(next_state.reward)
+    ended = (next_state.done > 0) | (length >= max_episode_steps) | ~finite
+    return EnvStep(next_state, length, finite, ended)
+
+
 def collect_step(
     env: Any,
     env_state: EnvState,
@@ -261,11 +286,9 @@ def collect_step(
 
     ``members_axis``: the name of a population's vmapped axis (``reset_ended``).
     """
-    next_state = jax.vmap(env.step)(env_state, action)
-    length = episode_length + 1
+    next_state, length, finite, ended = step_envs(env, env_state, action, episode_length,
+                                                  max_episode_steps)  # fmt: skip
     terminal = next_state.done
-    finite = jnp.all(jnp.isfinite(next_state.obs), -1) & jnp.isfinite(next_state.reward)
-    ended = (terminal > 0) | (length >= max_episode_steps) | ~finite
     transitions = Transitions(obs=env_state.obs, action=action, reward=next_state.reward,
                               next_obs=next_state.obs, terminal=terminal)  # fmt: skip
     ep_return = episode_return + next_state.reward

@@ -405,20 +405,10 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
     if args.resume:
         if args.seeds or args.sweep:
             raise UserError("--resume takes the members from population.json; drop --seeds/--sweep")
-        if not os.path.exists(index_path):
-            raise UserError(f"{args.out} holds no population to resume (no population.json)")
-        with open(index_path) as f:
-            index = json.load(f)
-        swept = index["swept"]
-        dirs = [os.path.join(args.out, m["run_dir"]) for m in index["members"]]
         try:
-            members = [runner.load_config(d) for d in dirs]
+            members, swept = population.stored_members(args.out, args.steps)
         except runner.RunError as e:
             raise UserError(str(e)) from None
-        if args.steps is not None:  # the length may change on resume (train_population)
-            from minatt_jax.config import replace_fields
-
-            members = [replace_fields(m, {"total_steps": args.steps}) for m in members]
     else:
         if args.seed is not None:
             raise UserError("--seed names one run; a population takes --seeds (e.g. 0-9)")

@@ -261,15 +261,17 @@ def penalty(
     next_obs: jax.Array | None = None,
     update_step: jax.Array | int = 0,
     controls: jax.Array | None = None,
-    alpha: jax.Array | float | None = None,
+    alpha: jax.Array | float,
     terms: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The weighted MA penalty and its parts ``{'feedback', 'temporal', 'penalty'}``.
 
-    ``alpha`` (a traced value allowed) replaces ``config.alpha`` as the weight: populations sweep
-    it as data. ``terms`` (traced, ``term_weights(mode)``) weighs the (feedback, temporal) terms
-    by 0 or 1: a member's mode as data. Which terms are computed stays a property of the config
-    (``config.active``, ``config.mode``: the union of the members' modes).
+    ``alpha`` (a traced value allowed: the agent state's ``hyper["alpha"]``) is the weight, always
+    passed: populations sweep it as data, and ``config.alpha`` only decides whether the terms are
+    computed at all (``config.active``). ``terms`` (traced, ``term_weights(mode)``) weighs the
+    (feedback, temporal) terms by 0 or 1: a member's mode as data. Which terms are computed stays
+    a property of the config (``config.active``, ``config.mode``: the union of the members'
+    modes).
 
     ``prev_params`` is needed for the parameter reading of the temporal term, ``next_obs`` for the
     rollout reading; ``update_step`` selects the updates that compute the feedback term when
@@ -278,7 +280,6 @@ def penalty(
     """
     zero = jnp.zeros((), jnp.float32)
     feedback, temporal, total = zero, zero, zero
-    alpha = config.alpha if alpha is None else alpha
     w_feedback, w_temporal = _split(terms)
     key_probe = key
     k = config.subsample
@@ -357,11 +358,11 @@ def per_state_penalty(
     *,
     prev_params: Any = None,
     next_obs: jax.Array | None = None,
-    alpha: jax.Array | float | None = None,
+    alpha: jax.Array | float,
     terms: jax.Array | None = None,
 ) -> jax.Array:
     """alpha * (feedback + temporal) for every state of the batch (no subsample, no interval);
-    ``alpha`` replaces ``config.alpha`` when given, ``terms`` weighs the terms (``penalty``).
+    ``alpha`` and ``terms`` as in ``penalty``.
 
     Used by the reward-shaping placement, which subtracts it from each transition's reward.
     """
@@ -372,7 +373,7 @@ def per_state_penalty(
     if config.uses_temporal:
         temporal = _temporal_per_state(config, u, params, obs, prev_params, next_obs, None)
         total = total + _scaled(temporal, w_temporal)
-    return (config.alpha if alpha is None else alpha) * total
+    return alpha * total
 
 
 class Regularizer(NamedTuple):
@@ -389,9 +390,10 @@ class Regularizer(NamedTuple):
       the batch transform of ``placement="reward"`` (alpha * penalty per state subtracted, no
       gradient); the identity otherwise.
 
-    ``alpha`` (traced values allowed) replaces the config's weight and ``terms`` weighs the
-    (feedback, temporal) terms (``term_weights``): a population's members carry their own alpha
-    and mode as data in the agent state.
+    ``alpha`` (traced values allowed) is required: the weight comes from the agent state's
+    ``hyper``, never from the config, so a learner cannot train with another value than the
+    run's. ``terms`` weighs the (feedback, temporal) terms (``term_weights``): a population's
+    members carry their own alpha and mode as data in the agent state.
     """
 
     actor_penalty: Callable[..., tuple[jax.Array, dict[str, jax.Array]]]
@@ -411,7 +413,7 @@ def make_regularizer(
     in_value = ma_config.active and ma_config.placement == "entropy"
 
     def actor_penalty(params, obs, next_obs, keys, prev_params=None, update_step=0,
-                      controls=None, alpha=None, terms=None):  # fmt: skip
+                      controls=None, *, alpha, terms=None):  # fmt: skip
         k_ma, k_caps = keys
         total = jnp.zeros((), jnp.float32)
         metrics: dict[str, jax.Array] = {}
@@ -427,7 +429,7 @@ def make_regularizer(
             metrics.update(parts)
         return total, metrics
 
-    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None, alpha=None,
+    def shape_rewards(params, obs, next_obs, reward, key, prev_params=None, *, alpha,
                       terms=None):  # fmt: skip
         if not in_reward:
             return reward
@@ -435,7 +437,7 @@ def make_regularizer(
                                     next_obs=next_obs, alpha=alpha, terms=terms)  # fmt: skip
         return reward - jax.lax.stop_gradient(shaping)
 
-    def next_value_penalty(params, next_obs, key, prev_params=None, alpha=None, terms=None):
+    def next_value_penalty(params, next_obs, key, prev_params=None, *, alpha, terms=None):
         if not in_value:
             return jnp.zeros(next_obs.shape[:1], jnp.float32)
         per_state = per_state_penalty(ma_config, u, params, next_obs, key,

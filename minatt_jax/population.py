@@ -44,9 +44,7 @@ from minatt_jax import checkpoint, run_guard, runner
 from minatt_jax import min_attention as ma
 from minatt_jax.agents.base import config_field, hyper_values
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
-from minatt_jax.evaluation import summarize
 from minatt_jax.run_files import (
-    DivergedError,
     RunError,
     load_config,
     write_json_atomic,
@@ -335,6 +333,27 @@ def train_population(
     return last
 
 
+def stored_members(
+    out_dir: str, total_steps: int | None = None
+) -> tuple[list[TrainConfig], list[str]]:
+    """The members and swept fields of the population in ``out_dir`` (its ``population.json`` and
+    the members' ``config.json``), to resume it; ``total_steps`` sets a new length. RunError when
+    there is no population there or a member's configuration cannot be read."""
+    index_path = os.path.join(out_dir, "population.json")
+    if not os.path.exists(index_path):
+        raise RunError(f"{out_dir} holds no population to resume (no population.json)")
+    try:
+        with open(index_path) as f:
+            index = json.load(f)
+        names, swept = [m["run_dir"] for m in index["members"]], list(index["swept"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise RunError(f"{index_path} cannot be read as a population index: {e}") from None
+    members = [load_config(os.path.join(out_dir, n)) for n in names]
+    if total_steps is not None:  # the length may change on resume (train_population)
+        members = [replace_fields(m, {"total_steps": total_steps}) for m in members]
+    return members, swept
+
+
 def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
                    index: dict[str, Any] | None, resume: bool) -> None:  # fmt: skip
     """Checks a resumed population's members against ``members`` (only the length and the chunk
@@ -449,54 +468,10 @@ def _train_group(
         log(f"resumed {len(dirs)} members at env step {step or 0}")
     t0 = time.perf_counter()
     chunk = program.compiled_chunk(states, log)
-    compile_s = time.perf_counter() - t0
-    writers = [runner.tensorboard(d) for d in dirs]
-    eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in program.members]
-    records: list[dict[str, Any]] = [{} for _ in dirs]
-    start = time.perf_counter()
-    total = max(c.total_steps for c in program.members)
+    members = runner.Members(trainer, program.members, dirs, chunk, program.evaluate,
+                             batched=True)  # fmt: skip
     out_dir = os.path.dirname(os.path.abspath(dirs[0]))
-    while int(states.env_steps[0]) < total:
-        if stop.received is not None:
-            raise runner.stopped_error(stop, dirs[0], out_dir)
-        t0 = time.perf_counter()
-        states, metrics = chunk(states)
-        states = jax.block_until_ready(states)
-        chunk_s = time.perf_counter() - t0
-        step = int(states.env_steps[0])
-        t0 = time.perf_counter()
-        keys = jnp.stack([jax.random.fold_in(k, step) for k in eval_keys])
-        results = jax.device_get(program.evaluate(states, keys, trainer.task_set))
-        eval_s = time.perf_counter() - t0
-        metrics = jax.device_get(metrics)
-        timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
-                   "wall_s": time.perf_counter() - start}  # fmt: skip
-        chunk_records = []
-        for i, d in enumerate(dirs):
-            evaluation = summarize(member(results, i), trainer.env.dt)
-            record = runner.make_record(step, evaluation, member(metrics, i), timings,
-                                        trainer.steps_per_chunk)  # fmt: skip
-            bad = runner.non_finite(record) + runner.non_finite_state(member(states, i))
-            if bad:  # checked for every member before any member's step is written
-                raise DivergedError(
-                    f"member {os.path.basename(d)} went non-finite at step {step} "
-                    f"({', '.join(bad[:4])}); nothing of this chunk was saved and every member "
-                    f"keeps checkpoint {checkpoint.latest_step(d)}. Change that member's "
-                    "settings (its config.json) or train it alone"
-                )
-            chunk_records.append(record)
-        for i, (d, record) in enumerate(zip(dirs, chunk_records, strict=True)):
-            # Rates per member: the population's aggregate is len(dirs) times these.
-            runner.write_step(d, step, member(states, i), record, writers[i])
-            records[i] = record
-        returns = np.asarray([r["return"] for r in records])
-        log(f"step {step:>8d}/{total} | return {returns.mean():9.2f} "
-            f"(min {returns.min():.1f}, max {returns.max():.1f}) over {len(dirs)} members | "
-            f"{len(dirs) * config.eval_every / chunk_s:8.0f} env steps/s in all")  # fmt: skip
-    for w in writers:
-        if w is not None:
-            w.close()
-    return records
+    return runner.train_chunks(members, states, time.perf_counter() - t0, stop, log, out_dir)
 
 
 __all__ = [
@@ -506,6 +481,7 @@ __all__ = [
     "member_name",
     "parse_seeds",
     "share",
+    "stored_members",
     "this_process",
     "train_in_stages",
     "train_population",

@@ -15,7 +15,7 @@ import signal
 import tempfile
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -310,53 +310,121 @@ def _train(
 
     t0 = time.perf_counter()
     chunk = compiled_once(compiled, "chunk", trainer.train_chunk, state, "training step", log)
-    compile_s = time.perf_counter() - t0
-    writer = tensorboard(run_dir)
-    eval_key = jax.random.PRNGKey(config.seed + 1_000_003)
-    record: dict[str, Any] = {}
+    members = Members(trainer, [config], [run_dir], chunk, trainer.evaluate, batched=False)
+    return train_chunks(members, state, time.perf_counter() - t0, stop, log)[0]
+
+
+class Members(NamedTuple):
+    """What ``train_chunks`` trains: one run's state (``batched`` False) or a population group's
+    states stacked on a leading axis, with the compiled chunk and evaluation that take them."""
+
+    trainer: Trainer
+    configs: list[TrainConfig]
+    dirs: list[str]
+    chunk: Callable[[Any], tuple[Any, dict]]  # states -> (states, chunk metrics)
+    evaluate: Callable[[Any, jax.Array, Any], Any]  # (states, eval keys, task set) -> results
+    batched: bool
+
+    def member(self, tree: Any, i: int) -> Any:
+        """Member ``i``'s part of a (stacked, when batched) tree."""
+        return jax.tree.map(lambda x: x[i], tree) if self.batched else tree
+
+    def env_steps(self, states: Any) -> int:
+        """The env steps every member has trained (one counter: the schedule is shared)."""
+        return int(states.env_steps[0] if self.batched else states.env_steps)
+
+
+def train_chunks(
+    members: Members,
+    states: Any,
+    compile_s: float,
+    stop: run_guard.StopSignals,
+    log: Callable[[str], None],
+    resume_dir: str | None = None,
+) -> list[dict[str, Any]]:
+    """The run loop of single runs and populations: one compiled chunk (``eval_every`` env steps
+    for every member), one evaluation, then for each member one metrics record, its policy
+    snapshot and its checkpoint, until the longest member's length. Every member's record is
+    checked for non-finite values before any member's step is written (DivergedError); a signal
+    stops it between chunks (StoppedError, resumed on ``resume_dir``, default the first
+    member's directory). Returns each member's last record."""
+    trainer, dirs = members.trainer, members.dirs
+    total = max(c.total_steps for c in members.configs)
+    writers = [tensorboard(d) for d in dirs]
+    eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in members.configs]
+    records: list[dict[str, Any]] = [{} for _ in dirs]
     start = time.perf_counter()
     try:
-        while int(state.env_steps) < config.total_steps:
+        while members.env_steps(states) < total:
             if stop.received is not None:
-                raise stopped_error(stop, run_dir)
+                raise stopped_error(stop, dirs[0], resume_dir)
             t0 = time.perf_counter()
-            state, train_metrics = chunk(state)
-            state = jax.block_until_ready(state)
+            states, metrics = members.chunk(states)
+            states = jax.block_until_ready(states)
             chunk_s = time.perf_counter() - t0
-            step = int(state.env_steps)
+            step = members.env_steps(states)
             t0 = time.perf_counter()
-            result = trainer.evaluate(state, jax.random.fold_in(eval_key, step), trainer.task_set)
-            evaluation = summarize(jax.device_get(result), trainer.env.dt)
+            keys = [jax.random.fold_in(k, step) for k in eval_keys]
+            keys = jnp.stack(keys) if members.batched else keys[0]
+            results = jax.device_get(members.evaluate(states, keys, trainer.task_set))
             eval_s = time.perf_counter() - t0
-            elapsed = time.perf_counter() - start
-            # The latest chunk's rate: the first chunks are faster (warm-up makes no updates).
-            chunks_left = -(-(config.total_steps - step) // trainer.steps_per_chunk)
-            remaining = chunks_left * (chunk_s + eval_s)
+            metrics = jax.device_get(metrics)
             timings = {"chunk_s": chunk_s, "eval_s": eval_s, "compile_s": compile_s,
-                       "wall_s": elapsed}  # fmt: skip
-            record = make_record(step, evaluation, jax.device_get(train_metrics), timings,
-                                 trainer.steps_per_chunk)  # fmt: skip
-            bad = non_finite(record) + non_finite_state(state)
-            if bad:
-                last = checkpoint.latest_step(run_dir)
-                raise DivergedError(
-                    f"training went non-finite at step {step} ({', '.join(bad[:4])}); nothing of "
-                    f"this chunk was saved and checkpoint {last} is kept. Lower alpha or the "
-                    f"learning rates and continue from it: {_resume_hint(run_dir)} --alpha A "
-                    "(or --set sac.actor_lr=...)"
-                )
-            write_step(run_dir, step, state, record, writer)
-            log(
-                f"step {step:>8d}/{config.total_steps} | return {record['return']:9.2f} "
-                f"| feedback {record['feedback_norm']:8.3f} | {record['env_steps_per_s']:7.0f} "
-                f"env steps/s | ETA {remaining / 60:6.1f} min"
-            )
-        if stop.received is not None and int(state.env_steps) < config.total_steps:
-            raise stopped_error(stop, run_dir)
+                       "wall_s": time.perf_counter() - start}  # fmt: skip
+            chunk_records = []
+            for i, d in enumerate(dirs):
+                evaluation = summarize(members.member(results, i), trainer.env.dt)
+                record = make_record(step, evaluation, members.member(metrics, i), timings,
+                                     trainer.steps_per_chunk)  # fmt: skip
+                bad = non_finite(record) + non_finite_state(members.member(states, i))
+                if bad:
+                    raise _diverged(members, d, step, bad)
+                chunk_records.append(record)
+            for i, (d, record) in enumerate(zip(dirs, chunk_records, strict=True)):
+                # Rates per member: a population's aggregate is len(dirs) times these.
+                write_step(d, step, members.member(states, i), record, writers[i])
+                records[i] = record
+            # The latest chunk's rate: the first chunks are faster (warm-up makes no updates).
+            chunks_left = -(-(total - step) // trainer.steps_per_chunk)
+            eta = f"ETA {chunks_left * (chunk_s + eval_s) / 60:6.1f} min"
+            log(_progress(step, total, records, len(dirs) * trainer.steps_per_chunk / chunk_s,
+                          eta))  # fmt: skip
+        if stop.received is not None and members.env_steps(states) < total:
+            raise stopped_error(stop, dirs[0], resume_dir)
     finally:
-        if writer is not None:
-            writer.close()
-    return record
+        for w in writers:
+            if w is not None:
+                w.close()
+    return records
+
+
+def _progress(step: int, total: int, records: list[dict], rate: float, eta: str) -> str:
+    """The log line of a chunk: one run's return and feedback, or a population's spread."""
+    if len(records) == 1:
+        r = records[0]
+        return (f"step {step:>8d}/{total} | return {r['return']:9.2f} | feedback "
+                f"{r['feedback_norm']:8.3f} | {rate:7.0f} env steps/s | {eta}")  # fmt: skip
+    returns = np.asarray([r["return"] for r in records])
+    return (f"step {step:>8d}/{total} | return {returns.mean():9.2f} (min {returns.min():.1f}, "
+            f"max {returns.max():.1f}) over {len(records)} members | {rate:8.0f} env steps/s "
+            f"in all | {eta}")  # fmt: skip
+
+
+def _diverged(members: Members, run_dir: str, step: int, bad: list[str]) -> DivergedError:
+    """The error of a chunk that went non-finite: nothing of it is written."""
+    last = checkpoint.latest_step(run_dir)
+    if not members.batched:
+        return DivergedError(
+            f"training went non-finite at step {step} ({', '.join(bad[:4])}); nothing of "
+            f"this chunk was saved and checkpoint {last} is kept. Lower alpha or the "
+            f"learning rates and continue from it: {_resume_hint(run_dir)} --alpha A "
+            "(or --set sac.actor_lr=...)"
+        )
+    return DivergedError(
+        f"member {os.path.basename(run_dir)} went non-finite at step {step} "
+        f"({', '.join(bad[:4])}); nothing of this chunk was saved and every member keeps "
+        f"checkpoint {last}. Change that member's settings (its config.json) or train it alone"
+    )
 
 
 def stopped_error(

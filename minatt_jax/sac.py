@@ -140,7 +140,7 @@ def make_sac(
         _, k_shape = jax.random.split(key)
         reward = regularizer.shape_rewards(
             state.actor_params, batch.obs, batch.next_obs, batch.reward, k_shape,
-            state.prev_actor_params, state.hyper["alpha"], state.hyper["ma_terms"],
+            state.prev_actor_params, alpha=state.hyper["alpha"], terms=state.hyper["ma_terms"],
         )  # fmt: skip
         return batch.replace(reward=reward)
 
@@ -153,7 +153,7 @@ def make_sac(
         # The entropy-like placement of MA: its penalty at s' is paid like ent * log pi(a'|s').
         ma_next = regularizer.next_value_penalty(
             state.actor_params, batch.next_obs, k_value, state.prev_actor_params,
-            state.hyper["alpha"], state.hyper["ma_terms"],
+            alpha=state.hyper["alpha"], terms=state.hyper["ma_terms"],
         )  # fmt: skip
         v_next = jnp.min(q_next, axis=0) - ent * next_logp - ma_next
         target = batch.reward + config.gamma * (1.0 - batch.terminal) * v_next

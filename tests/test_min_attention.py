@@ -66,8 +66,10 @@ def test_subsample_uses_the_leading_states(problem):
     prev = jax.tree.map(lambda x: x - 0.05, params)
     full = ma.MAConfig(alpha=1.0, estimator="jacfwd", subsample=0)
     key = jax.random.PRNGKey(0)
-    _, sub_parts = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
-    _, head_parts = ma.penalty(full, tanh_linear, params, obs[:4], key, prev_params=prev)
+    _, sub_parts = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev, alpha=cfg.alpha)
+    _, head_parts = ma.penalty(
+        full, tanh_linear, params, obs[:4], key, prev_params=prev, alpha=full.alpha
+    )
     for name in ("feedback", "temporal"):
         assert float(sub_parts[name]) == pytest.approx(float(head_parts[name]), rel=1e-6)
 
@@ -101,7 +103,9 @@ def test_penalty_gradient_matches_finite_differences(problem):
 
     def f(w):
         p = {**params, "W": w}
-        return ma.penalty(cfg, tanh_linear, p, obs, jax.random.PRNGKey(0), prev_params=prev)[0]
+        return ma.penalty(
+            cfg, tanh_linear, p, obs, jax.random.PRNGKey(0), prev_params=prev, alpha=cfg.alpha
+        )[0]
 
     w = params["W"].astype(jnp.float64) if jax.config.jax_enable_x64 else params["W"]
     grad = jax.grad(f)(w)
@@ -119,14 +123,23 @@ def test_modes_select_terms(problem):
     parts = {}
     for mode in ma.MODES:
         cfg = ma.MAConfig(alpha=1.0, mode=mode, estimator="jacfwd", subsample=0)
-        total, parts[mode] = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
+        total, parts[mode] = ma.penalty(
+            cfg, tanh_linear, params, obs, key, prev_params=prev, alpha=cfg.alpha
+        )
     assert float(parts["none"]["penalty"]) == 0.0
     assert float(parts["jacobian"]["temporal"]) == 0.0
     assert float(parts["temporal"]["feedback"]) == 0.0
     full = parts["jacobian"]["penalty"] + parts["temporal"]["penalty"]
     assert float(parts["full"]["penalty"]) == pytest.approx(float(full), rel=1e-6)
     zero_alpha = ma.MAConfig(alpha=0.0, estimator="jacfwd")
-    assert float(ma.penalty(zero_alpha, tanh_linear, params, obs, key, prev_params=prev)[0]) == 0
+    assert (
+        float(
+            ma.penalty(
+                zero_alpha, tanh_linear, params, obs, key, prev_params=prev, alpha=zero_alpha.alpha
+            )[0]
+        )
+        == 0
+    )
 
 
 def test_interval_keeps_a_gradient_with_scaled_weight(problem):
@@ -136,7 +149,7 @@ def test_interval_keeps_a_gradient_with_scaled_weight(problem):
     sparse = ma.MAConfig(alpha=0.5, mode="jacobian", estimator="jacfwd", subsample=0, interval=10)
 
     def loss(cfg, p, step):
-        return ma.penalty(cfg, tanh_linear, p, obs, key, update_step=step)[0]
+        return ma.penalty(cfg, tanh_linear, p, obs, key, update_step=step, alpha=cfg.alpha)[0]
 
     g_every = jax.grad(lambda p: loss(every, p, 0))(params)["W"]
     g_due = jax.jit(jax.grad(lambda p, s: loss(sparse, p, s)))(params, 20)["W"]
@@ -172,7 +185,9 @@ def test_per_state_penalty_matches_the_batch_penalty(problem):
     prev = jax.tree.map(lambda x: x - 0.05, params)
     cfg = ma.MAConfig(alpha=0.3, estimator="jacfwd", subsample=0)
     key = jax.random.PRNGKey(0)
-    per_state = ma.per_state_penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
-    total, _ = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev)
+    per_state = ma.per_state_penalty(
+        cfg, tanh_linear, params, obs, key, prev_params=prev, alpha=cfg.alpha
+    )
+    total, _ = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev, alpha=cfg.alpha)
     assert per_state.shape == (obs.shape[0],)
     assert float(jnp.mean(per_state)) == pytest.approx(float(total), rel=1e-5)

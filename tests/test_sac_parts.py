@@ -83,7 +83,9 @@ def test_entropy_placement_charges_the_next_state_in_the_critic_target():
         sac = make_sac(4, 2, SACConfig(hidden=(8, 8)), cfg)
         state = sac.init(jax.random.PRNGKey(1), hyper_of(TrainConfig(ma=cfg)))
         losses[placement] = float(sac.critic_step(state, batch, key)[1]["critic_loss"])
-        pen = sac.regularizer.next_value_penalty(state.actor_params, batch.next_obs, key)
+        pen = sac.regularizer.next_value_penalty(
+            state.actor_params, batch.next_obs, key, alpha=state.hyper["alpha"]
+        )
         if placement == "entropy":
             exact = 5.0 * ma.feedback_exact(sac.control, state.actor_params, batch.next_obs)
             np.testing.assert_allclose(pen, exact, rtol=1e-5)

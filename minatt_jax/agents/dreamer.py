@@ -155,10 +155,9 @@ def make(config: Any, env: Any, task_set: Any) -> Agent:
         policy_action = agent.act(params["actor"], latent, k_act)
         random_action = jax.random.uniform(k_random, (n, act_size), minval=-1.0, maxval=1.0)
         action = jnp.where(steps < config.warmup_steps, random_action, policy_action)
-        stepped = jax.vmap(env.step)(col.env_state, action)
-        length = col.episode_length + 1
-        finite = jnp.isfinite(stepped.reward) & jnp.all(jnp.isfinite(stepped.obs), -1)
-        ended_next = (stepped.done > 0) | (length >= config.max_episode_steps) | ~finite
+        stepped, length, finite, ended_next = acting.step_envs(
+            env, col.env_state, action, col.episode_length, config.max_episode_steps
+        )
         env_state = acting.reset_ended(col.ended, reset_envs, stepped, k_reset, members_axis)
         reward = jnp.where(finite, stepped.reward, 0.0)
         nxt = Batch(
