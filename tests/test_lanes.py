@@ -1,4 +1,4 @@
-"""experiments/lanes.py: pieces queued over lanes, each single-threaded, failures reported."""
+"""tools/lanes.py: pieces queued over lanes, each single-threaded, failures reported."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 import subprocess
 import sys
 
-SCRIPT = os.path.join(os.path.dirname(__file__), "..", "experiments", "lanes.py")
+SCRIPT = os.path.join(os.path.dirname(__file__), "..", "tools", "lanes.py")
 # Each piece writes its value, its XLA flags and the cores it may run on, then exits with
 # status 3 for the value "bad".
 PIECE = ("import os, sys; v = sys.argv[1]; "

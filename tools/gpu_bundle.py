@@ -1,6 +1,6 @@
 """Packs the wheels a lent GPU machine lacks, so that a device call runs the project offline.
 
-    python experiments/gpu_bundle.py [--out .gpu_bundle] [--python 3.12]
+    python tools/gpu_bundle.py [--out .gpu_bundle] [--python 3.12]
 
 The lent machine (``../.library/device``) has its own Python 3.12 with a CUDA jax, flax, optax,
 orbax-checkpoint, numpy, scipy and matplotlib, reaches no package index, and takes what a call

@@ -1,6 +1,6 @@
 """Runs the pieces of a grid as single-thread processes, one per CPU core ("lanes").
 
-    python experiments/lanes.py [--lanes 2] [--logs runs/lanes] --values 0 1 2 3 4 -- \\
+    python tools/lanes.py [--lanes 2] [--logs runs/lanes] --values 0 1 2 3 4 -- \\
         python experiments/ensemble_size.py --scale cpu --steps 10000 --seeds {} \\
         --records experiments/records --no-tables
 
