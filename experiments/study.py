@@ -3,9 +3,9 @@ statistics, cells, records, provenance.
 
 The experiments under ``experiments/`` (reading study, meta-training and meta-testing tables,
 ablation, ensemble size) read their members' evaluation records at the paper's stages and
-summarize each arm over seeds the same way: mean +- std (ddof 0, as the paper's +- values)
-with the 95% bootstrap interval of the mean, and the difference from a baseline arm with its
-interval (``stats``).
+summarize each arm over seeds the same way: mean +- sample std (ddof 1, as the paper's +-
+values) with the 95% bootstrap interval of the mean, and the difference from a baseline arm with
+its bootstrap and Welch intervals and the exact permutation test's p-value (``stats``).
 """
 
 from __future__ import annotations
@@ -78,7 +78,11 @@ def curves(dirs: list[str], metric: str = "return") -> dict[str, list[float]]:
         return {"step": [], "mean": [], "std": []}
     steps = sorted(set.intersection(*(set(p) for p in per_run)))
     values = np.array([[p[s] for s in steps] for p in per_run])
-    return {"step": steps, "mean": values.mean(0).tolist(), "std": values.std(0).tolist()}
+    return {
+        "step": steps,
+        "mean": values.mean(0).tolist(),
+        "std": values.std(0, ddof=1 if len(values) > 1 else 0).tolist(),
+    }
 
 
 def provenance(command: str) -> dict[str, str]:
@@ -101,6 +105,8 @@ def arm_summary(values: Sequence[float], baseline: Sequence[float] | None = None
         ci = stats.bootstrap_diff_ci(values, baseline)
         out["diff_ci"] = ci
         out["vs_baseline"] = stats.direction(ci)
+        out["welch_ci"] = stats.welch_ci(values, baseline)
+        out["permutation_p"] = stats.permutation_p(values, baseline)
     return out
 
 
@@ -154,7 +160,7 @@ def meta_test_rows(per_seed: list[list[dict]], baseline: list[list[dict]] | None
             curves = [np.mean([np.mean([task["return_curve"] for task in t["tasks"]], 0)
                                for t in chosen(tests)], 0) for tests in complete]  # fmt: skip
             row["return_curve_mean"] = np.mean(curves, 0).tolist()
-            row["return_curve_std"] = np.std(curves, 0).tolist()
+            row["return_curve_std"] = np.std(curves, 0, ddof=1 if len(curves) > 1 else 0).tolist()
         rows[name] = row
     return rows
 

@@ -1,0 +1,120 @@
+"""Minimum attention's share of whole-training wall time: MA off, feedback term every update,
+feedback term every 10 updates.
+
+The paper's appendix says the Jacobian term costs 10-12% of an update and, computed every 10
+updates, under 2% of training time. ``sac_update.py`` times updates alone; this benchmark times
+whole training runs through the library's run loop (``runner.train``: compile, collection, env
+steps, updates, evaluation every chunk, checkpoints), the variants interleaved round by round so
+the machine's drift hits them alike, and reports each variant's median wall time against the
+run without MA, with and without the one-off compile.
+
+    python benchmarks/ma_overhead.py                     # SAC, hopper, cpu preset, 5,000 steps
+    python benchmarks/ma_overhead.py --algo mbmpo --steps 2000 --rounds 1
+
+Writes ``benchmarks/results/ma_overhead.json`` (``--out``) and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import tempfile
+
+import jax
+
+from minatt_jax import runner
+from minatt_jax.config import PRESETS, with_overrides
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+# name -> overrides of the MA group; "off" is the baseline every ratio divides by.
+VARIANTS = {
+    "off": {"ma.alpha": 0.0},
+    "feedback every update": {"ma.alpha": 1.0, "ma.interval": 1},
+    "feedback every 10 updates": {"ma.alpha": 1.0, "ma.interval": 10},
+}
+
+
+def timed_run(config, folder: str) -> dict[str, float]:
+    """Trains ``config`` into a fresh ``folder``; its compile, loop and whole wall times."""
+    shutil.rmtree(folder, ignore_errors=True)
+    os.makedirs(folder)
+    last = runner.train(config, folder, log=lambda _: None)
+    return {"compile_s": last["compile_s"], "loop_s": last["wall_s"],
+            "whole_s": last["compile_s"] + last["wall_s"]}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--algo", default="sac", choices=("sac", "mbpo", "mbmpo"))
+    parser.add_argument("--env", default="hopper")
+    parser.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
+    parser.add_argument("--steps", type=int, default=5000, help="env steps after the warm-up")
+    parser.add_argument("--rounds", type=int, default=3, help="runs of each variant")
+    parser.add_argument(
+        "--placement",
+        default="actor_loss",
+        help="MA placement (the paper's: the penalty in the actor loss)",
+    )
+    parser.add_argument("--out", default=os.path.join(RESULTS, "ma_overhead.json"))
+    args = parser.parse_args()
+
+    base = PRESETS[args.preset]
+    total = base.warmup_steps + args.steps
+    configs = {
+        name: with_overrides(base, env=args.env, algo=args.algo, total_steps=total,
+                             eval_every=max(1000, args.steps // 5),
+                             **{"ma.placement": args.placement}, **overrides)
+        for name, overrides in VARIANTS.items()
+    }  # fmt: skip
+    times: dict[str, list[dict[str, float]]] = {name: [] for name in VARIANTS}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds):
+            for name, config in configs.items():
+                times[name].append(timed_run(config, os.path.join(tmp, "run")))
+                print(f"round {r + 1}/{args.rounds} {name}: {times[name][-1]['whole_s']:.1f} s",
+                      flush=True)  # fmt: skip
+
+    def median(name: str, key: str) -> float:
+        return statistics.median(t[key] for t in times[name])
+
+    rows = []
+    for name in VARIANTS:
+        rows.append({
+            "variant": name, "overrides": VARIANTS[name],
+            "whole_s": median(name, "whole_s"), "loop_s": median(name, "loop_s"),
+            "compile_s": median(name, "compile_s"),
+            "whole_vs_off": median(name, "whole_s") / median("off", "whole_s"),
+            "loop_vs_off": median(name, "loop_s") / median("off", "loop_s"),
+            "runs": times[name],
+        })  # fmt: skip
+    command = (
+        "python benchmarks/ma_overhead.py --algo {algo} --env {env} --preset {preset} "
+        "--steps {steps} --rounds {rounds} --placement {placement}"
+    ).format(**vars(args))
+    out = {"benchmark": "ma_overhead", "command": command,
+           "device": f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind})",
+           "machine": f"{platform.machine()}, {os.cpu_count()} cores", "jax": jax.__version__,
+           "algo": args.algo, "env": args.env, "preset": args.preset,
+           "env_steps": args.steps, "warmup_steps": base.warmup_steps,
+           "placement": args.placement, "rows": rows}  # fmt: skip
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    tmp_path = args.out + ".tmp"
+    with open(tmp_path, "w") as f:
+        json.dump(out, f, indent=2)
+    os.replace(tmp_path, args.out)
+
+    print(f"\n{args.algo} on {args.env}, {args.preset} preset, {args.steps} env steps after "
+          f"{base.warmup_steps} warm-up, median of {args.rounds} ({out['device']})")  # fmt: skip
+    print(f"{'variant':28s} {'whole s':>9s} {'loop s':>8s} {'whole/off':>10s} {'loop/off':>9s}")
+    for row in rows:
+        print(f"{row['variant']:28s} {row['whole_s']:9.1f} {row['loop_s']:8.1f} "
+              f"{row['whole_vs_off']:10.3f} {row['loop_vs_off']:9.3f}")  # fmt: skip
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
