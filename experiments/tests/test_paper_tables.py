@@ -10,7 +10,9 @@ import paper_numbers
 import pytest
 import study as xt
 
-PAPER = glob.glob(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "paper", "*.tex"))
+PAPER = glob.glob(
+    os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "paper", "*.tex")
+)
 
 
 @pytest.mark.skipif(not PAPER, reason="the paper's source is not beside this checkout")
