@@ -403,7 +403,7 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
     _join_processes(args)
     index_path = os.path.join(args.out, "population.json")
     if args.resume:
-        if args.seeds or args.sweep:
+        if args.seeds is not None or args.sweep:
             raise UserError("--resume takes the members from population.json; drop --seeds/--sweep")
         try:
             members, swept = population.stored_members(args.out, args.steps)
@@ -414,7 +414,7 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
             raise UserError("--seed names one run; a population takes --seeds (e.g. 0-9)")
         base = _train_config(args)
         try:
-            seeds = population.parse_seeds(args.seeds) if args.seeds else [base.seed]
+            seeds = population.parse_seeds(args.seeds) if args.seeds is not None else [base.seed]
             members = population.expand(base, seeds, args.sweep)
         except ValueError as e:
             raise UserError(str(e)) from None
@@ -444,7 +444,7 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
 
     population_dir = args.out and os.path.exists(os.path.join(args.out, "population.json"))
-    if args.seeds or args.sweep or (args.resume and population_dir):
+    if args.seeds is not None or args.sweep or (args.resume and population_dir):
         return _cmd_train_population(args)
     if args.distributed or any(getattr(args, f) is not None for f in _PROCESS_FLAGS):
         raise UserError("--distributed and --coordinator split a population (--seeds/--sweep) "
@@ -542,13 +542,17 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
 
 def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
-    from minatt_jax.analysis.report import AnalyzeConfig, analyze
+    from minatt_jax.analysis.report import AnalyzeConfig, analyze, check_inputs
 
     settings = AnalyzeConfig(
         episodes=args.episodes, bins=args.bins, grid=args.grid, grid_rollouts=args.grid_rollouts,
         grid_steps=args.grid_steps, maturation_steps=tuple(args.maturation_steps),
         perturbation=args.perturbation,
     )  # fmt: skip
+    try:
+        check_inputs(args.run_dirs, args.out)
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
     _make_out_dir(args.out)
     try:
         result = analyze(args.run_dirs, args.out, settings, log=lambda m: print(m, flush=True))

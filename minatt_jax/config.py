@@ -25,6 +25,7 @@ from typing import Any
 from minatt_jax.agents import registry
 from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dynamics_ensemble import ModelConfig
+from minatt_jax.fields import check, setting
 from minatt_jax.min_attention import CAPSConfig, MAConfig
 
 
@@ -51,40 +52,29 @@ class MBConfig:
         on it with KL <= ``trpo_max_kl``).
     """
 
-    epoch_length: int = 1000
-    model_train_every: int = 250
-    rollout_batch: int = 100_000
-    rollout_schedule: tuple[int, int, int, int] = (20, 150, 1, 15)
-    model_buffer_size: int = 2_000_000
-    real_ratio: float = 0.05
-    obs_clip: float = 100.0
-    meta_inner_lr: float = 1e-3
-    meta_first_order: bool = False
-    meta_inner: str = "sac"
-    vpg_horizon: int = 10
-    meta_outer: str = "sac"
-    trpo_max_kl: float = 0.01
+    epoch_length: int = setting(1000, ge=1)
+    model_train_every: int = setting(250, ge=1)
+    rollout_batch: int = setting(100_000, ge=1)
+    rollout_schedule: tuple[int, int, int, int] = setting(
+        (20, 150, 1, 15), length=4, item={"kind": int, "ge": 0}
+    )
+    model_buffer_size: int = setting(2_000_000, ge=1)
+    real_ratio: float = setting(0.05, ge=0, le=1)
+    obs_clip: float = setting(100.0, gt=0)
+    meta_inner_lr: float = setting(1e-3, ge=0)
+    meta_first_order: bool = setting(False)
+    meta_inner: str = setting("sac", choices=("sac", "vpg"))
+    vpg_horizon: int = setting(10, ge=1)
+    meta_outer: str = setting("sac", choices=("sac", "trpo"))
+    trpo_max_kl: float = setting(0.01, gt=0)
 
     def __post_init__(self) -> None:
-        for name in ("epoch_length", "model_train_every", "rollout_batch", "model_buffer_size"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"mb {name} must be positive, got {getattr(self, name)}")
+        check(self, "mb")
         start, end, lo, hi = self.rollout_schedule
-        if not (0 < lo <= hi and 0 <= start <= end):
-            raise ValueError(f"mb rollout_schedule must be (start, end, min>0, max>=min), got "
+        if not (0 < lo <= hi and start <= end):
+            raise ValueError("mb.rollout_schedule must be (start_epoch, end_epoch, min_len, "
+                             "max_len) with start <= end and 0 < min <= max, got "
                              f"{self.rollout_schedule}")  # fmt: skip
-        if not 0.0 <= self.real_ratio <= 1.0:
-            raise ValueError(f"mb real_ratio must be in [0, 1], got {self.real_ratio}")
-        if self.meta_inner not in ("sac", "vpg"):
-            raise ValueError(f"mb meta_inner must be 'sac' or 'vpg', got {self.meta_inner!r}")
-        if self.meta_outer not in ("sac", "trpo"):
-            raise ValueError(f"mb meta_outer must be 'sac' or 'trpo', got {self.meta_outer!r}")
-        if self.trpo_max_kl <= 0:
-            raise ValueError(f"mb trpo_max_kl must be positive, got {self.trpo_max_kl}")
-        if self.vpg_horizon <= 0:
-            raise ValueError(f"mb vpg_horizon must be positive, got {self.vpg_horizon}")
-        if self.meta_inner_lr < 0:
-            raise ValueError(f"mb meta_inner_lr must be >= 0, got {self.meta_inner_lr}")
 
     def rollout_length(self, epoch):
         """The scheduled rollout length at ``epoch`` (works on ints and traced arrays)."""
@@ -107,43 +97,51 @@ class SACConfig:
     shifted. MA's reward placement then subtracts its penalty from the scaled reward.
     """
 
-    hidden: tuple[int, ...] = (256, 256)
-    actor_lr: float = 3e-4
-    critic_lr: float = 3e-4
-    entropy_lr: float = 3e-4
-    gamma: float = 0.99
-    tau: float = 0.005
-    batch_size: int = 256
-    init_entropy_coef: float = 1.0
-    target_entropy: float | None = None  # None = -act_dim
-    log_std_min: float = -20.0
-    log_std_max: float = 2.0
-    normalize_obs: bool = False
-    normalize_reward: bool = False
+    hidden: tuple[int, ...] = setting((256, 256), min_length=1, item={"kind": int, "ge": 1})
+    actor_lr: float = setting(3e-4, ge=0)
+    critic_lr: float = setting(3e-4, ge=0)
+    entropy_lr: float = setting(3e-4, ge=0)
+    gamma: float = setting(0.99, ge=0, lt=1)
+    tau: float = setting(0.005, gt=0, le=1)
+    batch_size: int = setting(256, ge=1)
+    init_entropy_coef: float = setting(1.0, gt=0)
+    target_entropy: float | None = setting(None, kind=float, optional=True)  # None = -act_dim
+    log_std_min: float = setting(-20.0)
+    log_std_max: float = setting(2.0)
+    normalize_obs: bool = setting(False)
+    normalize_reward: bool = setting(False)
+
+    def __post_init__(self) -> None:
+        check(self, "sac")
+        if not self.log_std_min < self.log_std_max:
+            raise ValueError(f"sac.log_std_min ({self.log_std_min}) must be below "
+                             f"sac.log_std_max ({self.log_std_max})")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Everything a training run needs; saved as ``config.json`` in the run directory."""
 
+    # env, algo, task_set, tasks and physics name registered things: ``resolve`` checks them.
     env: str = "hopper"
     algo: str = "sac"
-    preset: str = "cpu"
+    preset: str = setting("cpu", choices=("smoke", "cpu", "paper"))
     task_set: str | None = None  # None: the agent's default ("train" for mbmpo, else "nominal")
     tasks: tuple[str, ...] = ()  # custom tasks ("mass=1.25,slope=0.1"); replace task_set if given
     physics: str | None = None  # None: the environment's default (fast; gym for cheetah_run)
-    seed: int = 0
-    total_steps: int = 50_000
-    num_envs: int = 1
-    updates_per_step: int | None = None  # agent updates per env step; None: the agent's default
-    warmup_steps: int = 5_000
-    buffer_size: int = 1_000_000
-    max_episode_steps: int = 1000
-    eval_every: int = 5_000
-    eval_episodes: int = 5
-    noise: str = "gaussian"  # "gaussian" (SAC's own sampling) or "ou"
-    ou_theta: float = 0.15
-    ou_sigma: float = 0.2
+    seed: int = setting(0, ge=0, lt=2**32)
+    total_steps: int = setting(50_000, ge=1)
+    num_envs: int = setting(1, ge=1)
+    # agent updates per env step; None: the agent's default
+    updates_per_step: int | None = setting(None, kind=int, ge=1, optional=True)
+    warmup_steps: int = setting(5_000, ge=0)
+    buffer_size: int = setting(1_000_000, ge=1)
+    max_episode_steps: int = setting(1000, ge=1)
+    eval_every: int = setting(5_000, ge=1)
+    eval_episodes: int = setting(5, ge=1)
+    noise: str = setting("gaussian", choices=("gaussian", "ou"))  # SAC's own sampling, or OU
+    ou_theta: float = setting(0.15, ge=0)
+    ou_sigma: float = setting(0.2, ge=0)
     sac: SACConfig = SACConfig()
     ma: MAConfig = MAConfig()
     caps: CAPSConfig = CAPSConfig()
@@ -152,17 +150,7 @@ class TrainConfig:
     dreamer: DreamerConfig = DreamerConfig()
 
     def __post_init__(self) -> None:
-        positive = ("total_steps", "num_envs", "buffer_size", "max_episode_steps", "eval_every",
-                    "eval_episodes")  # fmt: skip
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.updates_per_step is not None and self.updates_per_step <= 0:
-            raise ValueError(f"updates_per_step must be positive, got {self.updates_per_step}")
-        if self.warmup_steps < 0:
-            raise ValueError(f"warmup_steps must be >= 0, got {self.warmup_steps}")
-        if self.noise not in ("gaussian", "ou"):
-            raise ValueError(f"noise must be 'gaussian' or 'ou', got {self.noise!r}")
+        check(self, "")
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
 
@@ -391,8 +379,19 @@ def with_overrides(config: TrainConfig, **fields: Any) -> TrainConfig:
 def resolve(config: TrainConfig) -> TrainConfig:
     """``config`` with every derived default filled in and the cross-field rules checked.
 
-    Idempotent. Raises ValueError (one line, for the user) when the fields do not fit together.
+    Idempotent. Raises ValueError (one line, for the user) when the fields do not fit together
+    or name an environment, physics preset or task set that is not registered.
     """
+    import minatt_jax.envs as envs
+
+    if config.env not in envs.ENVIRONMENTS:
+        raise envs.UnknownNameError(f"unknown environment {config.env!r}; choose from "
+                                    f"{', '.join(envs.ENVIRONMENTS)}")  # fmt: skip
+    if config.physics is not None and config.physics not in envs.PHYSICS_PRESETS:
+        raise ValueError(f"physics must be one of {tuple(envs.PHYSICS_PRESETS)} (or None: the "
+                         f"environment's default), got {config.physics!r}")  # fmt: skip
+    if config.task_set is not None:
+        envs.check_task_set_name(config.task_set)
     agent_defaults = registry.get(config.algo).defaults(config)  # checks the agent's rules too
     values: dict[str, Any] = {}
     for name in ("task_set", "updates_per_step"):
@@ -402,8 +401,6 @@ def resolve(config: TrainConfig) -> TrainConfig:
         values["model.num_elites"] = min(5, config.model.ensemble_size)
     if config.ma.temporal_dt is None:
         if config.ma.temporal == "rollout":
-            import minatt_jax.envs as envs
-
             values["ma.temporal_dt"] = envs.make(config.env, config.physics).dt
         else:
             values["ma.temporal_dt"] = 1.0

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from minatt_jax.fields import check, setting
 from minatt_jax.replay import Transitions, select_rows
 
 
@@ -36,36 +37,36 @@ from minatt_jax.replay import Transitions, select_rows
 class ModelConfig:
     """Ensemble settings (defaults: the paper's appendix / MBPO)."""
 
-    ensemble_size: int = 7
-    num_elites: int | None = None  # None: min(5, ensemble_size) (``config.resolve``)
-    hidden: tuple[int, ...] = (200, 200, 200, 200)
-    lr: float = 1e-3
-    batch_size: int = 256
-    holdout_ratio: float = 0.2
-    max_holdout: int = 5_000
-    weight_decay: tuple[float, ...] = (2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4)
-    logvar_bound_penalty: float = 0.01
-    max_epochs: int = 100
-    max_batches_per_epoch: int = 0  # 0 = ceil(n_train / batch_size), the full data each epoch
-    patience: int = 5
-    improvement: float = 0.01
+    ensemble_size: int = setting(7, ge=1)
+    # None: min(5, ensemble_size) (``config.resolve``)
+    num_elites: int | None = setting(None, kind=int, ge=1, optional=True)
+    hidden: tuple[int, ...] = setting((200, 200, 200, 200), min_length=1,
+                                      item={"kind": int, "ge": 1})  # fmt: skip
+    lr: float = setting(1e-3, ge=0)
+    batch_size: int = setting(256, ge=1)
+    holdout_ratio: float = setting(0.2, gt=0, lt=1)
+    max_holdout: int = setting(5_000, ge=1)
+    weight_decay: tuple[float, ...] = setting((2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4),
+                                              item={"kind": float, "ge": 0})  # fmt: skip
+    logvar_bound_penalty: float = setting(0.01, ge=0)
+    max_epochs: int = setting(100, ge=1)
+    # 0 = ceil(n_train / batch_size), the full data each epoch
+    max_batches_per_epoch: int = setting(0, ge=0)
+    patience: int = setting(5, ge=1)
+    improvement: float = setting(0.01, ge=0)
 
     def __post_init__(self) -> None:
+        check(self, "model")
         if self.num_elites is not None and not 1 <= self.num_elites <= self.ensemble_size:
             raise ValueError(
-                f"model num_elites must be in [1, ensemble_size={self.ensemble_size}], "
+                f"model.num_elites must be in [1, ensemble_size={self.ensemble_size}], "
                 f"got {self.num_elites}"
             )
         if len(self.weight_decay) != len(self.hidden) + 1:
             raise ValueError(
-                f"model weight_decay needs one value per layer ({len(self.hidden) + 1}), "
+                f"model.weight_decay needs one value per layer ({len(self.hidden) + 1}), "
                 f"got {len(self.weight_decay)}"
             )
-        if not 0.0 < self.holdout_ratio < 1.0:
-            raise ValueError(f"model holdout_ratio must be in (0, 1), got {self.holdout_ratio}")
-        for name in ("batch_size", "max_holdout", "max_epochs", "patience"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"model {name} must be positive, got {getattr(self, name)}")
 
 
 @struct.dataclass

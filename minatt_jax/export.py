@@ -29,7 +29,8 @@ def _actor_layers(actor_params: Any) -> list[tuple[np.ndarray, np.ndarray]]:
 def export_policy(run_dir: str, out: str, step: int | None = None) -> dict[str, Any]:
     """Writes the policy of ``run_dir`` at ``step`` (default: the latest) to ``out`` atomically;
     returns the metadata written. Raises CheckpointError/RunError for a run it cannot read and
-    OSError for a path it cannot write."""
+    OSError for a path it cannot write; RunError for ``out`` on the run's own files."""
+    run_files.check_not_run_file(run_dir, out)
     policy = checkpoint.load_policy(run_dir, step)
     config, env = policy.config, policy.env
     if policy.family.recurrent:

@@ -30,6 +30,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from minatt_jax.fields import check, setting
+
 # u(params, obs) -> action for a single observation (deterministic control, e.g. tanh(mean)).
 ControlFn = Callable[[Any, jax.Array], jax.Array]
 
@@ -63,49 +65,24 @@ class MAConfig:
         written before the placement was recorded have "actor_loss" (``TrainConfig.from_dict``).
     """
 
-    alpha: float = 0.0
-    mode: str = "full"
-    estimator: str = "jacrev"
-    probes: int = 1
-    subsample: int = 32
-    interval: int = 1
-    interval_scaling: bool = True
-    temporal: str = "parameter"
-    temporal_dt: float | None = None
-    placement: str = "entropy"
+    alpha: float = setting(0.0, ge=0)
+    mode: str = setting("full", choices=MODES)
+    estimator: str = setting("jacrev", choices=ESTIMATORS)
+    probes: int = setting(1, ge=1)
+    subsample: int = setting(32, ge=0)
+    interval: int = setting(1, ge=1)
+    interval_scaling: bool = setting(True)
+    temporal: str = setting("parameter", choices=TEMPORAL_READINGS)
+    temporal_dt: float | None = setting(None, kind=float, gt=0, optional=True)
+    placement: str = setting("entropy", choices=PLACEMENTS)
 
     def __post_init__(self) -> None:
-        checks = [
-            (self.mode in MODES, f"ma mode must be one of {MODES}, got {self.mode!r}"),
-            (
-                self.estimator in ESTIMATORS,
-                f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}",
-            ),
-            (
-                self.temporal in TEMPORAL_READINGS,
-                f"temporal must be one of {TEMPORAL_READINGS}, got {self.temporal!r}",
-            ),
-            (
-                self.placement in PLACEMENTS,
-                f"placement must be one of {PLACEMENTS}, got {self.placement!r}",
-            ),
-            (self.alpha >= 0, f"alpha must be >= 0, got {self.alpha}"),
-            (self.probes >= 1, f"probes must be >= 1, got {self.probes}"),
-            (self.subsample >= 0, f"subsample must be >= 0, got {self.subsample}"),
-            (self.interval >= 1, f"interval must be >= 1, got {self.interval}"),
-            (
-                self.temporal_dt is None or self.temporal_dt > 0,
-                f"temporal_dt must be > 0, got {self.temporal_dt}",
-            ),
-        ]
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(message)
+        check(self, "ma")
         if self.placement == "entropy" and self.temporal == "rollout":
             raise ValueError(
-                "placement 'entropy' (the default) takes the penalty at the next state alone: "
-                "it needs the parameter reading of the temporal term; with temporal 'rollout' "
-                "choose placement 'actor_loss' or 'reward'"
+                "ma.placement 'entropy' (the default) takes the penalty at the next state "
+                "alone: it needs the parameter reading of the temporal term; with ma.temporal "
+                "'rollout' choose placement 'actor_loss' or 'reward'"
             )
 
     @property
@@ -317,9 +294,12 @@ def penalty(
 class CAPSConfig:
     """CAPS smoothness regularizer: lambda_T temporal, lambda_S spatial with noise sigma."""
 
-    lambda_t: float = 0.0
-    lambda_s: float = 0.0
-    sigma: float = 0.2
+    lambda_t: float = setting(0.0, ge=0)
+    lambda_s: float = setting(0.0, ge=0)
+    sigma: float = setting(0.2, ge=0)
+
+    def __post_init__(self) -> None:
+        check(self, "caps")
 
     @property
     def active(self) -> bool:

@@ -53,7 +53,10 @@ from minatt_jax.training import Trainer, program_key
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``"0-9"``, ``"0,3,5"`` or ``"0-3,7"`` -> a sorted list of distinct seeds (ValueError)."""
+    """``"0-9"``, ``"0,3,5"`` or ``"0-3,7"`` -> a sorted list of distinct seeds (ValueError for
+    an empty list or a seed given twice: a population would silently hold fewer members)."""
+    if not text.strip():
+        raise ValueError("seeds is empty; give them like 0-9 or 0,3,5")
     seeds: set[int] = set()
     for part in text.split(","):
         part = part.strip()
@@ -64,6 +67,9 @@ def parse_seeds(text: str) -> list[int]:
             raise ValueError(f"seeds must look like 0-9 or 0,3,5; got {text!r}") from None
         if first < 0 or last < first:
             raise ValueError(f"seeds must be >= 0 and ranges ascending; got {part!r}")
+        twice = seeds.intersection(range(first, last + 1))
+        if twice:
+            raise ValueError(f"seed {min(twice)} is given twice in {text!r}")
         seeds.update(range(first, last + 1))
     return sorted(seeds)
 
@@ -74,6 +80,11 @@ def expand(base: TrainConfig, seeds: list[int], sweeps: list[str]) -> list[Train
     ``sweeps`` are ``"group.field=v1,v2,..."`` strings (values typed from the dataclasses, as
     ``--set``); a field may be swept once.
     """
+    if not seeds:
+        raise ValueError("a population needs at least one seed")
+    if len(set(seeds)) != len(seeds):
+        twice = next(s for s in seeds if list(seeds).count(s) > 1)
+        raise ValueError(f"seed {twice} is given twice: each member needs its own seed")
     grid: list[list[str]] = []
     names: list[str] = []
     for sweep in sweeps:
@@ -454,6 +465,8 @@ def _train_group(
         runner.check_on_chunk_grid(step, config.eval_every, os.path.dirname(dirs[0]))
     states = program.init()
     if resume:
+        # every member's records read (and checked) before any member's file is written
+        records = [runner.read_metrics(d) for d in dirs]
         if step is not None:
             for i, d in enumerate(dirs):  # into the stacked states, one member at a time
                 try:
@@ -463,8 +476,8 @@ def _train_group(
                 states = _set_member(states, one, jnp.int32(i))
                 del one
             states = program.place(states)
-        for d in dirs:
-            runner.keep_metrics_until(d, step or 0)
+        for d, kept in zip(dirs, records, strict=True):
+            runner.keep_metrics_until(d, step or 0, kept)
         log(f"resumed {len(dirs)} members at env step {step or 0}")
     t0 = time.perf_counter()
     chunk = program.compiled_chunk(states, log)

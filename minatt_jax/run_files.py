@@ -74,19 +74,49 @@ def write_json_atomic(path: str, obj: Any) -> None:
 
 
 def read_metrics(run_dir: str) -> list[dict[str, Any]]:
-    """The records of ``metrics.jsonl`` (an unfinished last line is ignored)."""
+    """The records of ``metrics.jsonl`` (an unfinished last line is ignored). RunError, naming
+    the file and line, when it cannot be read or a finished line is not a JSON record."""
     path = os.path.join(run_dir, "metrics.jsonl")
     if not os.path.exists(path):
         return []
+    try:
+        with open(path) as f:
+            lines = f.readlines()
+    except (OSError, UnicodeDecodeError) as e:
+        why = e.strerror if isinstance(e, OSError) else str(e)
+        raise RunError(f"cannot read {path}: {why}") from None
     records = []
-    with open(path) as f:
-        for line in f:
-            if line.endswith("\n"):
-                records.append(json.loads(line))
+    for number, line in enumerate(lines, 1):
+        if not line.endswith("\n"):
+            continue
+        try:
+            record = json.loads(line)
+        except ValueError as e:
+            raise RunError(f"{path} line {number} is not a JSON record ({e})") from None
+        if not isinstance(record, dict) or "step" not in record:
+            raise RunError(f"{path} line {number} is not a metrics record (no step)")
+        records.append(record)
     return records
 
 
 RESULT_FILES = ("config.json", "metrics.jsonl")  # and meta_test/*.json
+# What a run directory holds of its own: an output written by a command never lands on these.
+RUN_OWN = (*RESULT_FILES, ".lock", "checkpoints", "checkpoints_ahead", "policy_snapshots",
+           "meta_test", "tensorboard")  # fmt: skip
+
+
+def check_not_run_file(run_dir: str, out: str) -> None:
+    """RunError when ``out`` is one of ``run_dir``'s own files or inside its own folders
+    (``RUN_OWN``): an export or a rollout written there would leave the run unusable. Other
+    names inside the run directory (``RUN/policy.npz``) are allowed."""
+    run = os.path.realpath(run_dir)
+    target = os.path.realpath(out)
+    relative = os.path.relpath(target, run)
+    if relative == "." or relative.split(os.sep)[0] in RUN_OWN:
+        raise RunError(
+            f"{out} is the run's own {'directory' if relative == '.' else 'file'} "
+            f"({relative}); write the output elsewhere, e.g. {run_dir}/policy.npz"
+        )
 
 
 def copy_results(run_dir: str, target: str) -> None:

@@ -52,9 +52,11 @@ def _json_value(v: Any) -> float | list:
     return float(v) if v.ndim == 0 else v.tolist()
 
 
-def keep_metrics_until(run_dir: str, step: int) -> None:
-    """Rewrites metrics.jsonl (atomically) without records after ``step``."""
-    kept = [r for r in read_metrics(run_dir) if r["step"] <= step]
+def keep_metrics_until(run_dir: str, step: int, records: list[dict] | None = None) -> None:
+    """Rewrites metrics.jsonl (atomically) without records after ``step``; ``records``: the
+    file's records already read (a resume reads every file before it writes any)."""
+    records = read_metrics(run_dir) if records is None else records
+    kept = [r for r in records if r["step"] <= step]
     path = os.path.join(run_dir, "metrics.jsonl")
     fd, tmp = tempfile.mkstemp(dir=run_dir, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
@@ -286,6 +288,7 @@ def _train(
             raise RunError(f"{run_dir} is already at step {step}; ask for at least that many "
                            "steps to resume it")  # fmt: skip
         check_on_chunk_grid(step, config.eval_every, run_dir)
+        records = read_metrics(run_dir)  # read (and checked) before anything is written
         changed = _changed_data(stored, config)
         if changed:
             log(
@@ -297,7 +300,7 @@ def _train(
         if step and step not in checkpoint.snapshot_steps(run_dir):  # lost in a crash
             checkpoint.save_policy_snapshot(run_dir, step, *state.policy_items())
         # Records after the checkpoint are written again, identically, by the rerun.
-        keep_metrics_until(run_dir, step)
+        keep_metrics_until(run_dir, step, records)
         log(f"resumed {run_dir} at env step {step}")
     else:
         if os.path.exists(config_path):

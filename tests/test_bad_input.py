@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 
 import jax
 import pytest
@@ -34,13 +35,17 @@ def paths(tmp_path_factory):
     checkpoint.save_policy_snapshot(run, 600, state.agent.actor_params, state.data.normalizer)
     with open(os.path.join(run, "metrics.jsonl"), "w") as f:
         f.write('{"step": 600, "return": 1.0}\n')
+    bad_metrics = str(root / "bad_metrics")  # the same run, its metrics.jsonl damaged
+    shutil.copytree(run, bad_metrics)
+    with open(os.path.join(bad_metrics, "metrics.jsonl"), "w") as f:
+        f.write('{"step": 300, "return": 1.0}\n{"step": 600, "retu\n')
     a_file = str(root / "a_file")
     open(a_file, "w").write("not a directory")
     corrupt = str(root / "corrupt")
     os.makedirs(corrupt)
     open(os.path.join(corrupt, "config.json"), "w").write('{"env": "hopper", "sac": 3}')
-    return {"RUN": run, "FILE": a_file, "CORRUPT": corrupt, "MISSING": str(root / "missing"),
-            "ROOT": str(root)}  # fmt: skip
+    return {"RUN": run, "BAD_METRICS": bad_metrics, "FILE": a_file, "CORRUPT": corrupt,
+            "MISSING": str(root / "missing"), "ROOT": str(root)}  # fmt: skip
 
 
 BIG = "99999999999999999999"
@@ -58,6 +63,18 @@ CASES = [
     (["train", "--set", "ma.nope=1"], "unknown"),
     (["train", "--set", "sac.hidden=abc"], "sac.hidden"),
     (["train", "--set", "ma.alpha"], "group.field=value"),
+    # declared admissible values (minatt_jax.fields), one line naming the field
+    (["train", "--set", "physics=bogus"], "physics must be one of"),
+    (["train", "--set", "sac.gamma=1.5"], "sac.gamma must be a finite number in [0, 1)"),
+    (["train", "--set", "sac.actor_lr=-0.001"], "sac.actor_lr must be a finite number >= 0"),
+    (["train", "--set", "sac.hidden="], "sac.hidden must be at least 1 value"),
+    (["train", "--set", "sac.hidden=0"], "sac.hidden must be at least 1 value"),
+    (["train", "--set", "sac.batch_size=0"], "sac.batch_size must be an integer >= 1"),
+    (["train", "--set", "mb.rollout_schedule=1,2"], "mb.rollout_schedule must be 4 values"),
+    (["train", "--set", "ma.alpha=nan"], "ma.alpha expects a finite number"),
+    (["train", "--seeds", "", "--out", "{MISSING}"], "seeds is empty"),
+    (["train", "--seeds", "0,0", "--out", "{MISSING}"], "seed 0 is given twice"),
+    (["train", "--sweep", "env=hopper,bogus", "--out", "{MISSING}"], "unknown environment"),
     (
         ["train", "--temporal", "rollout", "--placement", "entropy", "--out", "{MISSING}"],
         "choose placement 'actor_loss'",
@@ -76,6 +93,11 @@ CASES = [
     (["train", "--resume", "--out", "{RUN}", "--preset", "paper"], "drop --preset"),
     (["train", "--resume", "--out", "{RUN}", "--steps", "100"], "already at step 600"),
     (["train", "--resume", "--out", "{CORRUPT}"], "config.json"),
+    # read before anything is written: the new alpha must not reach config.json
+    (
+        ["train", "--resume", "--out", "{BAD_METRICS}", "--alpha", "0.5", "--steps", "900"],
+        "line 2 is not a JSON",
+    ),
     (["train", "--seeds", "0-3", "--seed", "1", "--out", "{MISSING}"], "--seeds"),
     (["train", "--seeds", "3-1", "--out", "{MISSING}"], "seeds"),
     (
@@ -121,6 +143,10 @@ CASES = [
     (["export", "{RUN}", "--out", "{ROOT}"], "is a directory"),
     (["export", "{RUN}", "--out", "/proc/policy.npz"], "cannot write"),
     (["export", "{MISSING}", "--out", "{ROOT}/p.npz"], "does not exist"),
+    (["export", "{RUN}", "--out", "{RUN}/config.json"], "the run's own file"),
+    (["export", "{RUN}", "--out", "{RUN}/policy_snapshots/x.npz"], "the run's own file"),
+    (["analyze", "{RUN}", "--out", "{RUN}"], "the run's own directory"),
+    (["analyze", "{RUN}", "{RUN}/", "--out", "{ROOT}/report"], "given twice"),
 ]
 
 

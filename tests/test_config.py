@@ -133,7 +133,7 @@ def test_bad_custom_tasks_name_the_problem(spec, message, make_env):
     "argv, message",
     [
         (["train", "--set", "ma.alpah=1"], "unknown setting 'ma.alpah'"),
-        (["train", "--set", "ma.alpha=-1"], "alpha must be >= 0"),
+        (["train", "--set", "ma.alpha=-1"], "ma.alpha must be a finite number >= 0"),
         (["train", "--set", "mb.meta_inner=adam"], "meta_inner must be"),
         (["train", "--task", "mass=abc"], "mass must be a number"),
         (["train", "--task", "crippled=nojoint"], "no actuated joint"),

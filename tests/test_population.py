@@ -46,7 +46,7 @@ def test_members_and_groups():
         (["--seeds", "x"], "seeds must look like"),
         (["--sweep", "ma.alpha"], "must look like group.field=v1,v2"),
         (["--sweep", "ma.alpah=0,1"], "unknown setting 'ma.alpah'"),
-        (["--sweep", "ma.alpha=0,-1"], "alpha must be >= 0"),
+        (["--sweep", "ma.alpha=0,-1"], "ma.alpha must be a finite number >= 0"),
         (["--sweep", "seed=0,1"], "seeds are set with --seeds"),
     ],
 )

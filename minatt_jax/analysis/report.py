@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import acting, checkpoint, runner
+from minatt_jax import acting, checkpoint, run_files, runner
 from minatt_jax.agents import registry
 from minatt_jax.analysis import control_analysis as ca
 from minatt_jax.analysis.plots import _pyplot, save_figure
@@ -306,6 +306,19 @@ def profiles_figure(runs: list[Run], path: str) -> None:
     save_figure(fig, path)
 
 
+def check_inputs(run_dirs: list[str], out_dir: str) -> None:
+    """RunError for a run given twice (it would count as two seeds) or a report directory on
+    a run's own files."""
+    seen: dict[str, str] = {}
+    for d in run_dirs:
+        real = os.path.realpath(d)
+        if real in seen:
+            raise runner.RunError(f"{d} is given twice (as {seen[real]} too): each run counts as "
+                                  "one seed")  # fmt: skip
+        seen[real] = d
+        run_files.check_not_run_file(d, out_dir)
+
+
 def analyze(
     run_dirs: list[str],
     out_dir: str,
@@ -313,6 +326,7 @@ def analyze(
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Writes every figure, the tables and report.html for ``run_dirs`` into ``out_dir``."""
+    check_inputs(run_dirs, out_dir)
     runs = load_runs(run_dirs)
     env_name = runs[0].config.env
     try:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from minatt_jax.fields import check, setting
+
 # What minatt-jax's DreamerV3 does differently from the official implementation, and why.
 DEVIATIONS = (
     "Replayed sequences start from a zero latent state (the official agent can carry the "
@@ -47,51 +49,46 @@ class DreamerConfig:
       train_ratio: replayed steps per environment step (1024: one update of 16 x 64 per step).
     """
 
-    deter: int = 512
-    hidden: int = 64
-    stoch: int = 32
-    classes: int = 4
-    blocks: int = 8
-    units: int = 64
-    layers: int = 3
-    bins: int = 255
-    unimix: float = 0.01
-    free_nats: float = 1.0
-    loss_dyn: float = 1.0
-    loss_rep: float = 0.1
-    imag_length: int = 15
-    horizon: float = 333.0
-    lam: float = 0.95
-    actent: float = 3e-4
-    slowreg: float = 1.0
-    slow_rate: float = 0.02
-    retnorm_rate: float = 0.01
-    retnorm_limit: float = 1.0
-    min_std: float = 0.1
-    max_std: float = 1.0
-    lr: float = 4e-5
-    agc: float = 0.3
-    eps: float = 1e-20
-    beta1: float = 0.9
-    beta2: float = 0.999
-    warmup: int = 1000
-    batch_size: int = 16
-    batch_length: int = 64
-    train_ratio: float = 1024.0
+    deter: int = setting(512, ge=1)
+    hidden: int = setting(64, ge=1)
+    stoch: int = setting(32, ge=1)
+    classes: int = setting(4, ge=1)
+    blocks: int = setting(8, ge=1)
+    units: int = setting(64, ge=1)
+    layers: int = setting(3, ge=1)
+    bins: int = setting(255, ge=2)
+    unimix: float = setting(0.01, ge=0, lt=1)
+    free_nats: float = setting(1.0, ge=0)
+    loss_dyn: float = setting(1.0, ge=0)
+    loss_rep: float = setting(0.1, ge=0)
+    imag_length: int = setting(15, ge=1)
+    horizon: float = setting(333.0, gt=1)
+    lam: float = setting(0.95, ge=0, le=1)
+    actent: float = setting(3e-4, ge=0)
+    slowreg: float = setting(1.0, ge=0)
+    slow_rate: float = setting(0.02, gt=0, le=1)
+    retnorm_rate: float = setting(0.01, gt=0, le=1)
+    retnorm_limit: float = setting(1.0, gt=0)
+    min_std: float = setting(0.1, gt=0)
+    max_std: float = setting(1.0, gt=0)
+    lr: float = setting(4e-5, gt=0)
+    agc: float = setting(0.3, gt=0)
+    eps: float = setting(1e-20, gt=0)
+    beta1: float = setting(0.9, ge=0, lt=1)
+    beta2: float = setting(0.999, ge=0, lt=1)
+    warmup: int = setting(1000, ge=0)
+    batch_size: int = setting(16, ge=1)
+    batch_length: int = setting(64, ge=2)
+    train_ratio: float = setting(1024.0, gt=0)
 
     def __post_init__(self) -> None:
-        positive = ("deter", "hidden", "stoch", "classes", "blocks", "units", "bins",
-                    "imag_length", "batch_size", "batch_length")  # fmt: skip
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"dreamer {name} must be positive, got {getattr(self, name)}")
+        check(self, "dreamer")
         if self.deter % self.blocks:
-            raise ValueError(f"dreamer deter ({self.deter}) must be a multiple of blocks "
+            raise ValueError(f"dreamer.deter ({self.deter}) must be a multiple of dreamer.blocks "
                              f"({self.blocks})")  # fmt: skip
-        if self.train_ratio <= 0 or self.lr <= 0 or self.horizon <= 1:
-            raise ValueError("dreamer train_ratio and lr must be positive and horizon > 1")
-        if not 0 <= self.unimix < 1 or not 0 < self.min_std <= self.max_std:
-            raise ValueError("dreamer unimix must be in [0, 1) and 0 < min_std <= max_std")
+        if not self.min_std <= self.max_std:
+            raise ValueError(f"dreamer.min_std ({self.min_std}) must be at most dreamer.max_std "
+                             f"({self.max_std})")  # fmt: skip
 
     @property
     def gamma(self) -> float:
