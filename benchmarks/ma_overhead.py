@@ -98,6 +98,8 @@ def main() -> None:
     out = {"benchmark": "ma_overhead", "command": command,
            "device": f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind})",
            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "jax": jax.__version__,
+           "xla_flags": os.environ.get("XLA_FLAGS", ""),
+           "cores_used": len(os.sched_getaffinity(0)),
            "algo": args.algo, "env": args.env, "preset": args.preset,
            "env_steps": args.steps, "warmup_steps": base.warmup_steps,
            "placement": args.placement, "rows": rows}  # fmt: skip

@@ -90,7 +90,7 @@ def write(records: list[dict], steps: int) -> None:
         "Deterministic evaluation, 5 episodes; mean +- std over the seeds that reached "
         "the step. SAC with 1 update per step is the learning table's SAC alpha 0 "
         "(`hopper_model_based.py`). 'ran on' names each seed's machine: cpu = 2 CPU cores, "
-        "jax 0.10.2; h100 = a lent H100 GPU with its own jax 0.11.2, the run's metrics "
+        "jax 0.10.2; h100 = an H100 GPU with its own jax 0.11.2, the run's metrics "
         "copied back.\n\n"
         + "\n".join(lines) + "\n"
     )  # fmt: skip

@@ -58,7 +58,7 @@ def _read(path: str) -> Any:
 
 
 def legacy_hopper() -> dict[str, Any] | None:
-    """The round-2 hopper runs (hopper_model_based.py / hopper_meta_test.py) in
+    """The older hopper runs (hopper_model_based.py / hopper_meta_test.py) in
     ``meta_training.py``'s layout: stages 10K and 50K, alpha 1 against 0, meta-tests at 50K."""
     path = os.path.join(RESULTS, "hopper_model_based.json")
     if not os.path.exists(path):

@@ -39,7 +39,7 @@ class MBConfig:
       rollout_batch: start states per rollout (split evenly over the slots).
       rollout_schedule: (start_epoch, end_epoch, min_len, max_len): the rollout length grows
         linearly from min_len to max_len between the two epochs (official MBPO's and mbrl-lib's
-        hopper schedule, epochs 20 -> 150, length 1 -> 15; before round 2 this default ended at
+        hopper schedule, epochs 20 -> 150, length 1 -> 15; minatt-jax's earlier default ended at
         epoch 100).
       model_buffer_size: capacity of the imagined-transition buffer (all slots together).
       real_ratio: fraction of each agent batch drawn from real data (the rest from the model).

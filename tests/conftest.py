@@ -1,7 +1,7 @@
-"""Shared fixtures and a persistent XLA compilation cache for the whole session.
+"""Shared fixtures and a persistent XLA compilation cache for the whole test run.
 
 Several tests compile the same programs (in-process, in subprocesses and in pytest-xdist
-workers); the cache, in one fresh temporary folder per session that the workers and subprocesses
+workers); the cache, in one fresh temporary folder per test run that the workers and subprocesses
 inherit through the environment, lets the later ones load them instead of compiling again.
 """
 

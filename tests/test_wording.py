@@ -1,0 +1,56 @@
+"""The repository speaks of minatt-jax and its users' machines only: no tracked text names how
+it was worked on (periods of work, borrowed machines and the calls to them, folders outside the
+repository). A hit names the file, the line and the phrase."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FORBIDDEN = re.compile(
+    r"\blent\b|\bborrowed\b|\bdevice calls?\b|\bsessions?\b|\bround[- ]?\d\b|\bthe issue\b"
+    r"|\bissue's\b|\.\./\.library|\.\./shared|/work/",
+    re.IGNORECASE,
+)
+# pytest's own word for one run of the suite, as code
+ALLOWED = re.compile(r"""scope=["']session["']""")
+TEXT = (".py", ".md", ".toml", ".txt", ".cfg", ".yml", ".yaml", ".json", ".html", ".sh", "")
+# data (each member's config and metrics, no prose), and this file, which spells the phrases out
+SKIP = ("experiments/records/", "tests/test_wording.py")
+
+
+def tracked_text_files() -> list[str]:
+    try:
+        out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return [f for f in out.splitlines()
+            if os.path.splitext(f)[1] in TEXT and not f.startswith(SKIP)
+            and os.path.isfile(os.path.join(ROOT, f))]  # fmt: skip
+
+
+def test_no_tracked_text_speaks_of_how_the_project_was_worked_on():
+    hits = []
+    for name in tracked_text_files():
+        try:
+            text = open(os.path.join(ROOT, name), encoding="utf-8").read()
+        except UnicodeDecodeError:
+            continue
+        for number, line in enumerate(text.splitlines(), 1):
+            for match in FORBIDDEN.finditer(ALLOWED.sub("", line)):
+                hits.append(f"{name}:{number}: {match.group(0)!r}")
+    assert not hits, "\n".join(hits)
+
+
+def test_the_pattern_catches_what_it_is_for():
+    for phrase in ("a lent H100", "one device call carries", "before round 2", "this session",
+                   "see ../shared/paper", "the issue's target"):  # fmt: skip
+        assert FORBIDDEN.search(phrase), phrase
+    for phrase in ("silently", "talent", "a populated round of 256 updates"):
+        assert not FORBIDDEN.search(phrase), phrase
+    assert not FORBIDDEN.search(ALLOWED.sub("", '@pytest.fixture(scope="session")'))
