@@ -631,34 +631,54 @@ def _write_json_atomic(path: str, obj: Any) -> None:
         raise UserError(f"cannot write {path}: {e.strerror or e}") from None
 
 
+def _ended(status: int, console: bool) -> int:
+    """``status`` for a command ended by a signal. As the console command, the process exits at
+    once (``os._exit``, after flushing): XLA's threads may be compiling, and tearing the
+    interpreter down around them can crash it (SIGSEGV) after the one line was printed; every
+    file a command writes is written atomically, so nothing is left half-written."""
+    if console:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``minatt-jax`` console script; returns the exit status."""
-    args = build_parser().parse_args(argv)
-    commands = {
-        "envs": _cmd_envs,
-        "rollout": _cmd_rollout,
-        "train": _cmd_train,
-        "evaluate": _cmd_evaluate,
-        "meta-test": _cmd_meta_test,
-        "analyze": _cmd_analyze,
-        "inspect": _cmd_inspect,
-        "export": _cmd_export,
-    }
+    """Entry point of the ``minatt-jax`` console script; returns the exit status.
+
+    Ctrl-C (SIGINT) and SIGTERM at any moment, from the imports on, end the command with one line
+    and exit status 130 / 143 (training stops after its current chunk, checkpoint written)."""
     from minatt_jax import run_guard
 
+    # minatt-jax never renders: without this, importing mujoco probes for an OpenGL library
+    # in a child process (glfw), which outlives a signal that ends the command during imports.
+    os.environ.setdefault("MUJOCO_GL", "disable")
+    console = argv is None
+    guard = run_guard.exit_on_signals() if console else run_guard.sigterm_raises()
     try:
-        with run_guard.sigterm_raises():
+        with guard:
+            args = build_parser().parse_args(argv)
+            commands = {
+                "envs": _cmd_envs,
+                "rollout": _cmd_rollout,
+                "train": _cmd_train,
+                "evaluate": _cmd_evaluate,
+                "meta-test": _cmd_meta_test,
+                "analyze": _cmd_analyze,
+                "inspect": _cmd_inspect,
+                "export": _cmd_export,
+            }
             commands[args.command](args)
     except UserError as e:
         label = "error" if e.exit_status == EXIT_USER_ERROR else "stopped"
         sys.stderr.write(f"minatt-jax: {label}: {e}\n")
-        return e.exit_status
+        return e.exit_status if label == "error" else _ended(e.exit_status, console)
     except KeyboardInterrupt:  # Ctrl-C outside training's own handler (start-up, evaluation)
         sys.stderr.write("minatt-jax: interrupted\n")
-        return 130
+        return _ended(130, console)
     except run_guard.TerminatedError:
         sys.stderr.write("minatt-jax: terminated\n")
-        return 143
+        return _ended(143, console)
     except BrokenPipeError:  # output piped into a reader that stopped (``| head``): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0

@@ -83,6 +83,29 @@ def sigterm_raises() -> Iterator[None]:
         _restore(previous)
 
 
+@contextlib.contextmanager
+def exit_on_signals() -> Iterator[None]:
+    """SIGINT/SIGTERM end the process at once with one line ("minatt-jax: interrupted" /
+    "terminated") and exit status 130 / 143: for the console command, whose files are all
+    written atomically. An exception raised from a handler instead can land inside a callback
+    that swallows it (XLA's gc callback) or unwind through compilation; exiting from the handler
+    cannot. Training installs its own ``StopSignals`` inside, which stop after a chunk."""
+    words = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        del frame
+        sys.stdout.flush()
+        sys.stderr.write(f"minatt-jax: {words.get(signum, 'stopped')}\n")
+        sys.stderr.flush()
+        os._exit(EXIT_STATUS.get(signum, 1))
+
+    previous = _install(handler, (signal.SIGINT, signal.SIGTERM))
+    try:
+        yield
+    finally:
+        _restore(previous)
+
+
 class StopSignals:
     """Context manager: records the first SIGINT/SIGTERM in ``received``; a second one exits.
 
