@@ -25,7 +25,7 @@ import numpy as np
 from flax import struct
 
 import minatt_jax.envs as envs
-from minatt_jax import acting
+from minatt_jax import acting, memory
 from minatt_jax import normalizer as obs_norm
 
 METRIC_NAMES = ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk")
@@ -38,6 +38,18 @@ class EvalResult:
     metrics: dict[str, jax.Array]
     actions: jax.Array
     alive: jax.Array  # (episodes, steps) 1.0 until the episode's first done (inclusive)
+
+
+def check_episodes_fit(env: envs.LocomotionEnv, episodes: int, steps: int) -> None:
+    """RunError before anything is allocated when ``episodes`` parallel episodes of ``steps``
+    steps cannot fit: each holds its simulator state and, per step, its observations (raw and
+    as the policy sees them), action, the Jacobian probe's and the metrics' values (float32)."""
+    shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env.nominal_task())
+    state = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(shapes))
+    per_step = 4 * (2 * env.observation_size + 2 * env.action_size + 16)
+    memory.check_fits(episodes * (state + steps * per_step),
+                      f"{episodes} evaluation episodes of {steps} steps",
+                      "ask for fewer episodes (--episodes)")  # fmt: skip
 
 
 def make_evaluator(
@@ -54,6 +66,7 @@ def make_evaluator(
     feedback probe).
     """
     dt = env.dt
+    check_episodes_fit(env, episodes, max_steps)
 
     def episode(params: Any, norm: Any, key: jax.Array, task: envs.Task):
         policy = policy_of(params, norm)

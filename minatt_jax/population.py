@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from minatt_jax import checkpoint, run_guard, runner
+from minatt_jax import checkpoint, memory, run_guard, runner
 from minatt_jax import min_attention as ma
 from minatt_jax.agents.base import config_field, hyper_values
 from minatt_jax.config import TrainConfig, apply_overrides, replace_fields, resolve
@@ -229,32 +229,16 @@ def state_bytes(trainer: Trainer) -> int:
     return sum(int(np.prod(s.shape)) * s.dtype.itemsize for s in jax.tree.leaves(shapes))
 
 
-def device_memory_bytes() -> int | None:
-    """Memory the population's device(s) offer: the accelerators' limit, or the host's
-    available memory on the CPU; None where neither can be read."""
-    devices = jax.local_devices()
-    stats = devices[0].memory_stats() if hasattr(devices[0], "memory_stats") else None
-    if stats and "bytes_limit" in stats:
-        return int(stats["bytes_limit"]) * len(devices)
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def check_memory(per_member: int, members: int) -> None:
     """RunError before compiling when ``members`` states of ``per_member`` bytes cannot fit
     (the state is held about twice while a chunk runs: input and output buffers)."""
-    available = device_memory_bytes()
-    needed = 2 * per_member * members
-    if available is not None and needed > 0.9 * available:
-        raise RunError(
-            f"{members} members need about {needed / 2**30:.1f} GiB ({per_member / 2**20:.0f} MiB "
-            f"of state each, held twice), more than 90% of the {available / 2**30:.1f} GiB "
-            f"the device has free now: free memory, fewer members, or smaller buffers "
-            f"(--set buffer_size=..., "
-            f"--set mb.model_buffer_size=...)"
-        )
+    memory.check_fits(
+        2 * per_member * members,
+        f"{members} members",
+        f"{per_member / 2**20:.0f} MiB of state each, held twice while a chunk runs; free "
+        "memory, fewer members, or smaller buffers (--set buffer_size=..., "
+        "--set mb.model_buffer_size=...)",
+    )
 
 
 def _finished(program: Program, dirs: list[str]) -> bool:

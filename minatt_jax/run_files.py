@@ -38,6 +38,14 @@ class StoppedError(RunError):
         self.exit_status = exit_status
 
 
+def file_mode() -> int:
+    """The mode a plain ``open`` would give a new file (0o666 less the umask): temporary files
+    are made 0600, and a result file renamed from one must not stay private to its writer."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_bytes_atomic(path: str, data: bytes) -> None:
     """Writes bytes through a uniquely named temporary file and a rename: never half a file,
     even with several processes writing the same path."""
@@ -45,6 +53,7 @@ def write_bytes_atomic(path: str, data: bytes) -> None:
     os.makedirs(directory, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
     try:
+        os.fchmod(fd, file_mode())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

@@ -12,7 +12,6 @@ import collections
 import json
 import os
 import signal
-import tempfile
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -57,12 +56,8 @@ def keep_metrics_until(run_dir: str, step: int, records: list[dict] | None = Non
     file's records already read (a resume reads every file before it writes any)."""
     records = read_metrics(run_dir) if records is None else records
     kept = [r for r in records if r["step"] <= step]
-    path = os.path.join(run_dir, "metrics.jsonl")
-    fd, tmp = tempfile.mkstemp(dir=run_dir, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        for r in kept:
-            f.write(json.dumps(r) + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(os.path.join(run_dir, "metrics.jsonl"),
+                      "".join(json.dumps(r) + "\n" for r in kept))  # fmt: skip
 
 
 def tensorboard(run_dir: str):

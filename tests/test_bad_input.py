@@ -135,6 +135,7 @@ CASES = [
     (["evaluate", "{RUN}", "--variant", "icy"], "unknown variant 'icy'"),
     (["evaluate", "{RUN}", "--task", "mass=0"], "mass"),
     (["evaluate", "{RUN}", "--engine", "bullet"], "invalid choice"),
+    (["evaluate", "{RUN}", "--episodes", "2000000000"], "ask for fewer episodes"),
     (["meta-test", "{RUN}", "--variant", "icy"], "unknown variant 'icy'"),
     (["meta-test", "{MISSING}", "--variant", "mass"], "does not exist"),
     (["analyze", "{MISSING}", "--out", "{ROOT}/report"], "does not exist"),

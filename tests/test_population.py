@@ -252,7 +252,7 @@ def _assert_same_members(one_device: str, other: str, names: list[str]) -> None:
 
 
 def test_a_population_that_cannot_fit_is_refused_before_compiling(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr(population, "device_memory_bytes", lambda: 64 * 2**20)  # a 64 MiB device
+    monkeypatch.setattr(population.memory, "available_bytes", lambda: 64 * 2**20)  # a 64 MiB device
     argv = ["train", "--preset", "cpu", "--seeds", "0-3", "--out", str(tmp_path / "pop")]
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -325,7 +325,7 @@ def test_a_trained_population_resumes_without_the_memory_its_training_needs(monk
     members = population.expand(ONE_CHUNK, [0, 1], ["ma.alpha=0,1"])
     out = str(tmp_path / "pop")
     population.train_population(members, out, ["ma.alpha"], log=lambda _: None)
-    monkeypatch.setattr(population, "device_memory_bytes", lambda: 2**20)  # a 1 MiB device
+    monkeypatch.setattr(population.memory, "available_bytes", lambda: 2**20)  # a 1 MiB device
     population.train_population(members, out, ["ma.alpha"], resume=True, log=lambda _: None)
     longer = [with_overrides(m, total_steps=2 * m.total_steps) for m in members]
     with pytest.raises(runner.RunError, match="members need about"):

@@ -199,3 +199,18 @@ def test_a_full_disk_during_a_checkpoint_is_one_line(tmp_path, monkeypatch, caps
     with pytest.raises(checkpoint.CheckpointError, match="No space left on device"):
         checkpoint.save(str(tmp_path), 300, {"x": jnp.zeros(3)})
     assert "absl" not in capsys.readouterr().err
+
+
+def test_result_files_follow_the_umask_not_the_temporary_files_0600(tmp_path):
+    from minatt_jax.analysis import plots
+
+    previous = os.umask(0o022)
+    try:
+        runner.write_json_atomic(str(tmp_path / "a.json"), {"x": 1})
+        runner.keep_metrics_until(str(tmp_path), 0, [])
+        fig = plots._pyplot().figure()
+        plots.save_figure(fig, str(tmp_path / "f.png"))
+    finally:
+        os.umask(previous)
+    for name in ("a.json", "metrics.jsonl", "f.png"):
+        assert os.stat(tmp_path / name).st_mode & 0o777 == 0o644, name

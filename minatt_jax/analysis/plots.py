@@ -6,6 +6,8 @@ import os
 import tempfile
 from typing import Any
 
+from minatt_jax import run_files
+
 
 def _pyplot():
     import matplotlib
@@ -22,6 +24,7 @@ def save_figure(fig: Any, path: str) -> None:
     os.makedirs(directory, exist_ok=True)
     # A unique temporary name: two processes writing the same figure must not share one.
     fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp.png")
+    os.fchmod(fd, run_files.file_mode())
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")

@@ -1,0 +1,34 @@
+"""Memory a computation may use, checked before it allocates: one clear line instead of an
+out-of-memory crash (or a machine swapping) minutes later."""
+
+from __future__ import annotations
+
+import os
+
+import jax
+
+from minatt_jax.run_files import RunError
+
+
+def available_bytes() -> int | None:
+    """Memory the local devices offer: the accelerators' limit, or the host's available memory
+    on the CPU; None where neither can be read."""
+    devices = jax.local_devices()
+    stats = devices[0].memory_stats() if hasattr(devices[0], "memory_stats") else None
+    if stats and "bytes_limit" in stats:
+        return int(stats["bytes_limit"]) * len(devices)
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_fits(needed: int, what: str, advice: str) -> None:
+    """RunError ("<what> need about X GiB, more than 90% of the Y GiB the device has free now:
+    <advice>") when ``needed`` bytes do not fit."""
+    available = available_bytes()
+    if available is not None and needed > 0.9 * available:
+        raise RunError(
+            f"{what} need about {needed / 2**30:.1f} GiB, more than 90% of the "
+            f"{available / 2**30:.1f} GiB the device has free now: {advice}"
+        )
