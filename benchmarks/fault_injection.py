@@ -1,13 +1,15 @@
 """Kill a training run at random moments, resume it, and tally how often the metrics come out exact.
 
     python benchmarks/fault_injection.py [--algo sac] [--kills 10] [--steps 1500] [--seed 0]
+        [--population]
 
 One uninterrupted smoke run is the reference; a second one, loading its compiled program from
 the cache as every later run does, gives the wall time of a run. Then, ``--kills`` times: the
 same run starts in a fresh directory, receives SIGKILL after a uniformly random delay (up to that
 wall time, so the kill lands in start-up, a chunk, an evaluation or a checkpoint save),
 and is resumed with ``--resume`` (again and again until it finishes). Its ``metrics.jsonl``
-(timings dropped) must equal the reference's. Writes
+(timings dropped) must equal the reference's; with ``--population``, a population of 2 seeds x 2
+alphas (``--seeds 0-1 --sweep ma.alpha=0,1``), every member's. Writes
 ``benchmarks/results/fault_injection_<algo>.json`` and prints the tally.
 """
 
@@ -29,8 +31,17 @@ from minatt_jax import checkpoint, runner
 RESULTS = os.path.join(os.path.dirname(__file__), "results")
 
 
-def _records(run_dir: str) -> list[dict]:
-    return runner.without_timings(runner.read_metrics(run_dir))
+def _records(out: str) -> dict[str, list[dict]]:
+    """Each member's records without timings (one member, "", for a single run)."""
+    if not os.path.exists(os.path.join(out, "population.json")):
+        return {"": runner.without_timings(runner.read_metrics(out))}
+    members = sorted(d for d in os.listdir(out)
+                     if os.path.exists(os.path.join(out, d, "config.json")))  # fmt: skip
+    return {d: runner.without_timings(runner.read_metrics(os.path.join(out, d))) for d in members}
+
+
+def _started(out: str) -> bool:
+    return any(os.path.exists(os.path.join(out, f)) for f in ("config.json", "population.json"))
 
 
 def _train(argv: list[str], env: dict) -> subprocess.Popen:
@@ -48,11 +59,15 @@ def main() -> None:
     parser.add_argument("--earliest", type=float, default=0.0,
                         help="kill no earlier than this (seconds), e.g. past start-up")  # fmt: skip
     parser.add_argument("--tag", default="", help="suffix of the result file's name")
+    parser.add_argument("--population", action="store_true",
+                        help="a population of 2 seeds x 2 alphas instead of one run")  # fmt: skip
     args = parser.parse_args()
     rng = random.Random(args.seed)
     work = tempfile.mkdtemp(prefix="minatt-fault-")
     env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": os.path.join(work, "xla-cache")}
     base = ["train", "--preset", "smoke", "--algo", args.algo, "--steps", str(args.steps)]
+    if args.population:
+        base += ["--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
     reference_dir = os.path.join(work, "reference")
     start = time.perf_counter()
     proc = _train([*base, "--out", reference_dir], env)
@@ -67,7 +82,8 @@ def main() -> None:
     wall = time.perf_counter() - start
     if _records(os.path.join(work, "again")) != reference:
         raise SystemExit("two uninterrupted runs differ: nothing to compare kills against")
-    print(f"reference: {len(reference)} records in {compile_wall:.0f} s, {wall:.0f} s with the "
+    count = sum(map(len, reference.values()))
+    print(f"reference: {count} records in {compile_wall:.0f} s, {wall:.0f} s with the "
           f"compiled program cached ({args.algo})", flush=True)  # fmt: skip
     trials = []
     for i in range(args.kills):
@@ -78,11 +94,12 @@ def main() -> None:
         finished_first = proc.poll() is not None
         proc.send_signal(signal.SIGKILL)
         proc.wait()
-        at_kill = checkpoint.latest_step(run_dir) if os.path.isdir(run_dir) else None
+        at_kill = (checkpoint.latest_step(run_dir) if os.path.isdir(run_dir)
+                   and not args.population else None)  # fmt: skip
         resumes = 0
         while True:
             resumes += 1
-            fresh = not os.path.exists(os.path.join(run_dir, "config.json"))
+            fresh = not _started(run_dir)
             argv = [*base, "--out", run_dir] + ([] if fresh else ["--resume"])
             proc = _train(argv, env)
             _, err = proc.communicate()
@@ -98,6 +115,7 @@ def main() -> None:
         shutil.rmtree(run_dir, ignore_errors=True)
     tally = {
         "algo": args.algo,
+        "population": args.population,
         "steps": args.steps,
         "reference_wall_s": round(compile_wall, 1),
         "cached_run_wall_s": round(wall, 1),
@@ -107,10 +125,12 @@ def main() -> None:
         "trials": trials,
         "command": f"python benchmarks/fault_injection.py --algo {args.algo} --kills "
         f"{args.kills} --steps {args.steps} --seed {args.seed} --earliest {args.earliest}"
-        + (f" --tag {args.tag}" if args.tag else ""),
+        + (f" --tag {args.tag}" if args.tag else "")
+        + (" --population" if args.population else ""),
     }
     os.makedirs(RESULTS, exist_ok=True)
-    name = f"fault_injection_{args.algo}{'_' + args.tag if args.tag else ''}.json"
+    kind = "_population" if args.population else ""
+    name = f"fault_injection_{args.algo}{kind}{'_' + args.tag if args.tag else ''}.json"
     runner.write_json_atomic(os.path.join(RESULTS, name), tally)
     shutil.rmtree(work, ignore_errors=True)
     print(json.dumps({k: v for k, v in tally.items() if k != "trials"}))

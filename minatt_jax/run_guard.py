@@ -28,7 +28,10 @@ class RunLockedError(Exception):
 @contextlib.contextmanager
 def lock_run(run_dir: str, name: str = ".lock") -> Iterator[None]:
     """Holds ``RUN_DIR/<name>`` exclusively; raises RunLockedError when another process has it.
-    (Each process of a multi-process population locks a name of its own.)"""
+    (Each process of a multi-process population locks a name of its own.) A directory this call
+    made is removed again when the lock is all it holds at the end (a start that failed before
+    writing anything leaves no folder behind)."""
+    made = not os.path.isdir(run_dir)
     os.makedirs(run_dir, exist_ok=True)
     path = os.path.join(run_dir, name)
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -45,6 +48,9 @@ def lock_run(run_dir: str, name: str = ".lock") -> Iterator[None]:
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         yield
     finally:
+        if made and os.listdir(run_dir) == [name]:
+            os.unlink(path)
+            os.rmdir(run_dir)
         os.close(fd)  # closing releases the lock
 
 

@@ -39,12 +39,16 @@ def paths(tmp_path_factory):
     shutil.copytree(run, bad_metrics)
     with open(os.path.join(bad_metrics, "metrics.jsonl"), "w") as f:
         f.write('{"step": 300, "return": 1.0}\n{"step": 600, "retu\n')
+    moon = str(root / "moon")  # a config.json naming an environment that is not registered
+    run_files.write_json_atomic(os.path.join(moon, "config.json"), {**CONFIG.to_dict(),
+                                                                    "env": "moon"})  # fmt: skip
     a_file = str(root / "a_file")
     open(a_file, "w").write("not a directory")
     corrupt = str(root / "corrupt")
     os.makedirs(corrupt)
     open(os.path.join(corrupt, "config.json"), "w").write('{"env": "hopper", "sac": 3}')
-    return {"RUN": run, "BAD_METRICS": bad_metrics, "FILE": a_file, "CORRUPT": corrupt,
+    return {"RUN": run, "BAD_METRICS": bad_metrics, "MOON": moon, "FILE": a_file,
+            "CORRUPT": corrupt,
             "MISSING": str(root / "missing"), "ROOT": str(root)}  # fmt: skip
 
 
@@ -136,6 +140,9 @@ CASES = [
     (["evaluate", "{RUN}", "--task", "mass=0"], "mass"),
     (["evaluate", "{RUN}", "--engine", "bullet"], "invalid choice"),
     (["evaluate", "{RUN}", "--episodes", "2000000000"], "ask for fewer episodes"),
+    (["evaluate", "{MOON}"], "unknown environment 'moon'"),
+    (["export", "{MOON}", "--out", "{ROOT}/moon.npz"], "unknown environment 'moon'"),
+    (["analyze", "{MOON}", "--out", "{ROOT}/moon_report"], "unknown environment 'moon'"),
     (["meta-test", "{RUN}", "--variant", "icy"], "unknown variant 'icy'"),
     (["meta-test", "{MISSING}", "--variant", "mass"], "does not exist"),
     (["analyze", "{MISSING}", "--out", "{ROOT}/report"], "does not exist"),

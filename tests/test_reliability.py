@@ -214,3 +214,13 @@ def test_result_files_follow_the_umask_not_the_temporary_files_0600(tmp_path):
         os.umask(previous)
     for name in ("a.json", "metrics.jsonl", "f.png"):
         assert os.stat(tmp_path / name).st_mode & 0o777 == 0o644, name
+
+
+def test_a_start_that_fails_before_writing_leaves_no_folder(tmp_path):
+    fresh, kept = str(tmp_path / "fresh"), str(tmp_path / "kept")
+    with pytest.raises(RuntimeError), run_guard.lock_run(fresh):
+        raise RuntimeError("failed before writing anything")
+    assert not os.path.exists(fresh)
+    with run_guard.lock_run(kept):
+        open(os.path.join(kept, "config.json"), "w").write("{}")
+    assert sorted(os.listdir(kept)) == [".lock", "config.json"]
