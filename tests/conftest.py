@@ -37,6 +37,34 @@ def make_env():
     return get
 
 
+def untrained_run(run: str, config, step: int) -> None:
+    """A run directory made without training: ``config`` (resolved), a checkpoint and a policy
+    snapshot of the initial state at ``step``, and one metrics record there."""
+    from minatt_jax import checkpoint, run_files
+    from minatt_jax.training import hyper_of, make_train
+
+    run_files.write_json_atomic(os.path.join(run, "config.json"), config.to_dict())
+    state = make_train(config).init(jax.random.PRNGKey(0), hyper_of(config))
+    state = state.replace(env_steps=state.env_steps + step)
+    checkpoint.save(run, step, state)
+    checkpoint.save_policy_snapshot(run, step, state.agent.actor_params, state.data.normalizer)
+    with open(os.path.join(run, "metrics.jsonl"), "w") as f:
+        f.write(json.dumps({"step": step, "return": 1.0}) + "\n")
+
+
+def digest(root: str) -> dict[str, str]:
+    """sha256 of every file under ``root`` but the lock: what "nothing was changed" compares."""
+    import hashlib
+
+    out = {}
+    for base, _, files in os.walk(root):
+        for name in files:
+            if name != ".lock":
+                path = os.path.join(base, name)
+                out[path] = hashlib.sha256(open(path, "rb").read()).hexdigest()
+    return out
+
+
 def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object]:
     """The CLI's exit status (returned, or raised by argparse) and what it printed."""
     from minatt_jax.cli import main

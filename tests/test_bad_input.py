@@ -6,17 +6,15 @@ and a policy snapshot, made without training) whose files are hashed before and 
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 
-import jax
 import pytest
+from conftest import digest, untrained_run
 
-from minatt_jax import checkpoint, run_files
+from minatt_jax import run_files
 from minatt_jax.cli import main
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import hyper_of, make_train
 
 # One worker runs this module: its module-scoped run is made once (pytest-xdist --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("test_bad_input")
@@ -28,13 +26,7 @@ CONFIG = resolve(with_overrides(PRESETS["smoke"], total_steps=300))
 def paths(tmp_path_factory):
     root = tmp_path_factory.mktemp("bad")
     run = str(root / "run")
-    run_files.write_json_atomic(os.path.join(run, "config.json"), CONFIG.to_dict())
-    state = make_train(CONFIG).init(jax.random.PRNGKey(0), hyper_of(CONFIG))
-    state = state.replace(env_steps=state.env_steps + 600)
-    checkpoint.save(run, 600, state)
-    checkpoint.save_policy_snapshot(run, 600, state.agent.actor_params, state.data.normalizer)
-    with open(os.path.join(run, "metrics.jsonl"), "w") as f:
-        f.write('{"step": 600, "return": 1.0}\n')
+    untrained_run(run, CONFIG, 600)
     bad_metrics = str(root / "bad_metrics")  # the same run, its metrics.jsonl damaged
     shutil.copytree(run, bad_metrics)
     with open(os.path.join(bad_metrics, "metrics.jsonl"), "w") as f:
@@ -158,21 +150,10 @@ CASES = [
 ]
 
 
-def _digest(root: str) -> dict[str, str]:
-    out = {}
-    for base, _, files in os.walk(root):
-        for name in files:
-            if name == ".lock":
-                continue
-            path = os.path.join(base, name)
-            out[path] = hashlib.sha256(open(path, "rb").read()).hexdigest()
-    return out
-
-
 @pytest.mark.parametrize("argv, message", CASES, ids=[" ".join(a) for a, _ in CASES])
 def test_bad_input_is_one_line_and_exit_2(paths, argv, message, capsys):
     argv = [a.format(**paths) for a in argv]
-    before = _digest(paths["ROOT"])
+    before = digest(paths["ROOT"])
     try:
         status = main(argv)
     except SystemExit as e:  # argparse
@@ -182,4 +163,4 @@ def test_bad_input_is_one_line_and_exit_2(paths, argv, message, capsys):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("minatt-jax: error:"), err
     assert message in lines[0]
-    assert _digest(paths["ROOT"]) == before  # nothing already written was changed
+    assert digest(paths["ROOT"]) == before  # nothing already written was changed

@@ -7,19 +7,17 @@ assertions hold whichever phase the signal meets)."""
 
 from __future__ import annotations
 
-import hashlib
 import os
 import signal
 import subprocess
 import sys
 import time
 
-import jax
 import pytest
+from conftest import digest, untrained_run
 
-from minatt_jax import checkpoint, run_files
+from minatt_jax import run_files
 from minatt_jax.config import PRESETS, resolve, with_overrides
-from minatt_jax.training import hyper_of, make_train
 
 CONFIG = resolve(with_overrides(PRESETS["smoke"], total_steps=300))
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -30,24 +28,8 @@ def run_dir(tmp_path_factory):
     """A run directory (config, a checkpoint at step 300, a policy snapshot) made without
     training."""
     run = str(tmp_path_factory.mktemp("signals") / "run")
-    run_files.write_json_atomic(os.path.join(run, "config.json"), CONFIG.to_dict())
-    state = make_train(CONFIG).init(jax.random.PRNGKey(0), hyper_of(CONFIG))
-    state = state.replace(env_steps=state.env_steps + 300)
-    checkpoint.save(run, 300, state)
-    checkpoint.save_policy_snapshot(run, 300, state.agent.actor_params, state.data.normalizer)
-    with open(os.path.join(run, "metrics.jsonl"), "w") as f:
-        f.write('{"step": 300, "return": 1.0}\n')
+    untrained_run(run, CONFIG, 300)
     return run
-
-
-def _digest(root: str) -> dict[str, str]:
-    out = {}
-    for base, _, files in os.walk(root):
-        for name in files:
-            if name != ".lock":
-                path = os.path.join(base, name)
-                out[path] = hashlib.sha256(open(path, "rb").read()).hexdigest()
-    return out
 
 
 # (command, signal, seconds after start): imports take about 3 s, compilation follows.
@@ -69,7 +51,7 @@ CASES = [
                          ids=[f"{a[0]}-{s.name}-{d:g}s" for a, s, d in CASES])  # fmt: skip
 def test_a_signal_ends_a_command_with_one_line(run_dir, tmp_path, argv, signum, delay):
     argv = [a.format(RUN=run_dir, TMP=str(tmp_path)) for a in argv]
-    before = _digest(run_dir)
+    before = digest(run_dir)
     proc = subprocess.Popen([sys.executable, "-m", "minatt_jax.cli", *argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     time.sleep(delay)
@@ -82,7 +64,7 @@ def test_a_signal_ends_a_command_with_one_line(run_dir, tmp_path, argv, signum, 
         lines = lines[1:]
     assert len(lines) == 1 and lines[0].startswith("minatt-jax: "), err
     assert "Traceback" not in err
-    assert _digest(run_dir) == before
+    assert digest(run_dir) == before
     train_dir = os.path.join(str(tmp_path), "train")
     if argv[0] == "train" and os.path.exists(os.path.join(train_dir, "config.json")):
         run_files.load_config(train_dir)  # what a stop leaves is readable
