@@ -464,22 +464,27 @@ def cost_claims() -> list[dict[str, Any]]:
 
 def training_share_claim(bench: dict[str, Any]) -> dict[str, Any]:
     """'< 2% of training time' judged on whole training runs (``benchmarks/ma_overhead.py``):
-    the median wall time with the feedback term every 10 updates against MA off."""
+    the wall time of the training loop (collection, simulation, updates, evaluation,
+    checkpoints) with the feedback term every 10 updates against MA off. The verdict reads the
+    loop: the benchmark's runs are short, and a run of the paper's length spends a negligible
+    share compiling; the whole short run, compile included, is given beside it."""
     rows = {r["variant"]: r for r in bench["rows"]}
     every, amortized = rows["feedback every update"], rows["feedback every 10 updates"]
-    share = 100 * (amortized["whole_vs_off"] - 1)
-    ours = (f"{share:.1f}% of whole-training wall time with the feedback term every 10 updates "
-            f"({100 * (every['whole_vs_off'] - 1):.1f}% every update; the loop without the "
-            f"compile: {100 * (amortized['loop_vs_off'] - 1):.1f}% and "
-            f"{100 * (every['loop_vs_off'] - 1):.1f}%), {bench['algo']} on {bench['env']}, "
+    share = 100 * (amortized["loop_vs_off"] - 1)
+    cores = bench.get("cores_used")
+    where = f"{bench['machine']}" + (f", {cores} core(s) used" if cores else "")
+    ours = (f"{share:.1f}% of the training loop's wall time with the feedback term every 10 "
+            f"updates ({100 * (every['loop_vs_off'] - 1):.1f}% every update; with the compile "
+            f"of these short runs: {100 * (amortized['whole_vs_off'] - 1):.1f}% and "
+            f"{100 * (every['whole_vs_off'] - 1):.1f}%), {bench['algo']} on {bench['env']}, "
             f"{bench['env_steps']} steps after a {bench['warmup_steps']}-step warm-up, median "
             f"of {len(amortized['runs'])} interleaved runs; `{bench['command']}`, "
-            f"{bench['machine']}")  # fmt: skip
+            f"{where}")  # fmt: skip
     return {"claim": "Updating the attention cost every 10 steps makes the overhead < 2%",
             "paper": "< 2% of training time", "ours": ours,
             "verdict": "reproduced" if share < 2 else "not reproduced",
-            "reason": "share of whole-training wall time (compile, simulation, updates, "
-                      "evaluation), one benchmark run"}  # fmt: skip
+            "reason": "share of the training loop's wall time (simulation, updates, "
+                      "evaluation, checkpoints), one benchmark run"}  # fmt: skip
 
 
 def latest_table(pattern: str, env: str, usable: Callable[[dict, dict], list[str]]
