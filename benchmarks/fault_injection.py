@@ -66,8 +66,9 @@ def main() -> None:
     work = tempfile.mkdtemp(prefix="minatt-fault-")
     env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": os.path.join(work, "xla-cache")}
     base = ["train", "--preset", "smoke", "--algo", args.algo, "--steps", str(args.steps)]
+    population_flags = ["--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
     if args.population:
-        base += ["--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
+        base += population_flags
     reference_dir = os.path.join(work, "reference")
     start = time.perf_counter()
     proc = _train([*base, "--out", reference_dir], env)
@@ -100,7 +101,9 @@ def main() -> None:
         while True:
             resumes += 1
             fresh = not _started(run_dir)
-            argv = [*base, "--out", run_dir] + ([] if fresh else ["--resume"])
+            # a population's resume takes its members from population.json
+            again = [a for a in base if a not in population_flags] if args.population else base
+            argv = [*base, "--out", run_dir] if fresh else [*again, "--out", run_dir, "--resume"]
             proc = _train(argv, env)
             _, err = proc.communicate()
             if proc.returncode == 0 or resumes >= 3:
