@@ -91,7 +91,10 @@ config = ma.MAConfig(alpha=1.0, mode="jacobian", estimator="jacrev", subsample=0
 
 @jax.jit
 def step(p, key):
-    loss, grads = jax.value_and_grad(lambda q: ma.penalty(config, u, q, states, key)[0])(p)
+    def loss_of(q):
+        return ma.penalty(config, u, q, states, key, alpha=config.alpha)[0]
+
+    loss, grads = jax.value_and_grad(loss_of)(p)
     return jax.tree.map(lambda a, g: a - 0.05 * g, p, grads), loss
 
 

@@ -33,9 +33,9 @@ def test_members_and_groups():
     assert [len(g) for g in population.groups(shapes)] == [4, 4]  # a shape field: two programs
     names = {population.member_name(m, ["sac.hidden", "ma.alpha"]) for m in shapes}
     assert "sac_hidden(64,64)_alpha1_seed1" in names and len(names) == 8
-    assert population.parse_seeds("0-3,7,2") == [0, 1, 2, 3, 7]
-    for bad in ("a-b", "3-1", "-1"):
-        with pytest.raises(ValueError, match="seeds"):
+    assert population.parse_seeds("0-3,7") == [0, 1, 2, 3, 7]
+    for bad in ("a-b", "3-1", "-1", "", "0-3,7,2", "1,1"):  # a repeated seed would be lost
+        with pytest.raises(ValueError, match="seed"):
             population.parse_seeds(bad)
 
 
@@ -306,7 +306,8 @@ def test_a_locked_population_is_refused_before_anything_is_written(monkeypatch, 
         with population.run_guard.lock_run(fresh):
             with pytest.raises(runner.RunError, match="another process"):
                 population.train_population(members, fresh, [], log=lambda _: None)
-        assert sorted(os.listdir(fresh)) == [".lock"]
+            assert sorted(os.listdir(fresh)) == [".lock"]  # the refused population wrote nothing
+        assert not os.path.exists(fresh)  # and the lock's own folder went with the lock
     with open(config_path) as f:
         assert f.read() == written
     population.train_population(longer, out, [], resume=True, log=lambda _: None)
