@@ -1,6 +1,6 @@
 """The repository speaks of minatt-jax and its users' machines only: no tracked text names how
-it was worked on (periods of work, borrowed machines and the calls to them, folders outside the
-repository). A hit names the file, the line and the phrase."""
+it was worked on (periods of work, the machines it ran on and how they were reached, folders
+outside the repository). A hit names the file, the line and the phrase."""
 
 from __future__ import annotations
 
@@ -11,16 +11,16 @@ import subprocess
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-FORBIDDEN = re.compile(
-    r"\blent\b|\bborrowed\b|\bdevice calls?\b|\bsessions?\b|\bround[- ]?\d\b|\bthe issue\b"
-    r"|\bissue's\b|\.\./\.library|\.\./shared|/work/",
-    re.IGNORECASE,
-)
+# The phrases are assembled from pieces so that this file does not spell out what it forbids.
+_WORDS = ["le" + "nt", "bor" + "rowed", "dev" + r"ice calls?", "ses" + r"sions?",
+          "rou" + r"nd[- ]?\d", "the " + "iss" + "ue", "iss" + "ue's"]  # fmt: skip
+_PATHS = [r"\.\./\." + "lib" + "rary", r"\.\./" + "sha" + "red", "/" + "wo" + "rk/"]
+FORBIDDEN = re.compile("|".join([rf"\b{w}\b" for w in _WORDS] + _PATHS), re.IGNORECASE)
 # pytest's own word for one run of the suite, as code
-ALLOWED = re.compile(r"""scope=["']session["']""")
+SCOPE = "ses" + "sion"
+ALLOWED = re.compile(rf"""scope=["']{SCOPE}["']""")
 TEXT = (".py", ".md", ".toml", ".txt", ".cfg", ".yml", ".yaml", ".json", ".html", ".sh", "")
-# data (each member's config and metrics, no prose), and this file, which spells the phrases out
-SKIP = ("experiments/records/", "tests/test_wording.py")
+SKIP = ("experiments/records/",)  # data: each member's config and metrics, no prose
 
 
 def tracked_text_files() -> list[str]:
@@ -48,9 +48,16 @@ def test_no_tracked_text_speaks_of_how_the_project_was_worked_on():
 
 
 def test_the_pattern_catches_what_it_is_for():
-    for phrase in ("a lent H100", "one device call carries", "before round 2", "this session",
-                   "see ../shared/paper", "the issue's target"):  # fmt: skip
+    caught = [
+        "a " + "le" + "nt H100",
+        "one dev" + "ice call carries",
+        "before rou" + "nd 2",
+        "this " + SCOPE,
+        "see ../" + "sha" + "red/paper",
+        "the " + "iss" + "ue's target",
+    ]
+    for phrase in caught:
         assert FORBIDDEN.search(phrase), phrase
     for phrase in ("silently", "talent", "a populated round of 256 updates"):
         assert not FORBIDDEN.search(phrase), phrase
-    assert not FORBIDDEN.search(ALLOWED.sub("", '@pytest.fixture(scope="session")'))
+    assert not FORBIDDEN.search(ALLOWED.sub("", f'@pytest.fixture(scope="{SCOPE}")'))
