@@ -1,48 +1,54 @@
-"""Notebooks: each py:percent source runs as a script in smoke mode, and its .ipynb is in step."""
+"""Notebooks: each .ipynb is its py:percent source (jupytext pairs them), and every notebook
+executes cell by cell in a Jupyter kernel (nbclient) in smoke mode; a failing cell fails the test
+with that cell's traceback."""
 
 from __future__ import annotations
 
-import importlib.util
-import json
 import os
 import pathlib
-import subprocess
-import sys
 
+import jupytext
+import nbformat
 import pytest
 
 NOTEBOOKS = pathlib.Path(__file__).parent.parent / "notebooks"
 SOURCES = sorted(p.name for p in NOTEBOOKS.glob("[0-9][0-9]_*.py"))
-# CI runs the regularizer-on-any-policy notebook (every notebook's pairing is checked above);
-# the others train programs other tests compile (quickstart, meta-RL, a report, a population)
-# and are extended tests (pytest -m extended).
-IN_CI = ("02_min_attention_any_policy.py",)
-RUNS = [n if n in IN_CI else pytest.param(n, marks=pytest.mark.extended) for n in SOURCES]
 
 
-def _pair_module():
-    spec = importlib.util.spec_from_file_location("pair", NOTEBOOKS / "pair.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def cells(notebook: nbformat.NotebookNode) -> list[tuple[str, str]]:
+    return [(c.cell_type, c.source) for c in notebook.cells]
 
 
-def test_every_notebook_is_paired_without_outputs_and_has_its_setup_cells():
+def test_every_notebook_is_a_jupytext_pair_without_outputs_and_has_its_setup_cells():
     assert len(SOURCES) == 5
-    assert _pair_module().main(["--check"]) == 0  # each .ipynb is its .py, regenerated
     for name in SOURCES:
-        notebook = json.loads((NOTEBOOKS / name).with_suffix(".ipynb").read_text())
-        code = [c for c in notebook["cells"] if c["cell_type"] == "code"]
-        assert all(c["outputs"] == [] and c["execution_count"] is None for c in code), name
-        assert "pip" in "".join(code[0]["source"]), name  # the Colab install cell comes first
-        assert "SMOKE" in "".join(code[1]["source"]), name  # then the parameters
+        source = jupytext.read(NOTEBOOKS / name)
+        paired_path = (NOTEBOOKS / name).with_suffix(".ipynb")
+        paired = nbformat.read(paired_path, as_version=4)
+        nbformat.validate(paired)  # nbformat 4.5: every cell has an id
+        assert all("id" in c for c in paired.cells), name
+        assert cells(paired) == cells(source), f"{paired_path} differs: jupytext --sync {name}"
+        code = [c for c in paired.cells if c.cell_type == "code"]
+        assert all(c.outputs == [] and c.execution_count is None for c in code), name
+        assert "pip" in code[0].source, name  # the Colab install cell comes first
+        assert "SMOKE" in code[1].source, name  # then the parameters
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", RUNS)
-def test_notebook_runs_in_smoke_mode(name, tmp_path):
-    env = {**os.environ, "MINATT_SMOKE": "1", "MINATT_OUT": str(tmp_path / "runs"),
-           "MPLBACKEND": "Agg"}  # fmt: skip
-    proc = subprocess.run([sys.executable, str(NOTEBOOKS / name)], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=1200)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-3000:]
+@pytest.mark.parametrize("name", SOURCES)
+def test_notebook_executes_in_a_kernel_in_smoke_mode(name, tmp_path, monkeypatch):
+    from nbclient import NotebookClient
+
+    # The kernel inherits this environment: smoke settings, outputs under tmp_path, and the test
+    # run's compilation cache (tests/conftest.py), so programs other tests compiled load from it.
+    monkeypatch.setenv("MINATT_SMOKE", "1")
+    monkeypatch.setenv("MINATT_OUT", str(tmp_path / "runs"))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    notebook = nbformat.read((NOTEBOOKS / name).with_suffix(".ipynb"), as_version=4)
+    client = NotebookClient(notebook, timeout=1200, kernel_name="python3",
+                            resources={"metadata": {"path": str(tmp_path)}})  # fmt: skip
+    client.execute()
+    outputs = [o for c in notebook.cells if c.cell_type == "code" for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"], name
+    assert outputs, f"{name} printed nothing"
+    assert os.environ["JAX_COMPILATION_CACHE_DIR"]
