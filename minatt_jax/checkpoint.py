@@ -397,6 +397,17 @@ class Policy(NamedTuple):
         return build(self.actor_params, self.normalizer)
 
 
+def latest_policy_step(run_dir: str) -> int | None:
+    """The step whose policy ``load_policy`` reads by default: the latest checkpoint, else the
+    latest policy snapshot (a run whose checkpoints were deleted to save space); None if
+    neither exists."""
+    step = latest_step(run_dir)
+    if step is None:
+        snapshots = snapshot_steps(run_dir)
+        step = snapshots[-1] if snapshots else None
+    return step
+
+
 def load_policy(run_dir: str, step: int | None = None) -> Policy:
     """The policy of ``run_dir`` at ``step`` (default: the latest checkpoint) without building a
     trainer: from the step's policy snapshot, or from the checkpoint's items that hold the policy
@@ -406,12 +417,9 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
 
     config = run_files.load_config(run_dir)
     if step is None:
-        step = latest_step(run_dir)
+        step = latest_policy_step(run_dir)
         if step is None:
-            snapshots = snapshot_steps(run_dir)
-            if not snapshots:
-                raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
-            step = snapshots[-1]
+            raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
     env = envs.make(config.env, config.physics)
     kind = registry.get(config.algo).policy(config, env)
     if step in snapshot_steps(run_dir):

@@ -108,11 +108,28 @@ def test_analyze_bad_input_exit_2(smoke_runs, tmp_path, capsys):
     empty.mkdir()
     (empty / "config.json").write_text(json.dumps(config))
     assert main(["analyze", str(empty), "--out", str(tmp_path / "r")]) == 2
-    assert "has no checkpoints" in capsys.readouterr().err
+    assert "has no checkpoint or policy snapshot" in capsys.readouterr().err
     argv = ["analyze", smoke_runs[0], "--out", str(tmp_path / "r"), "--perturbation", "windy"]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "unknown variant" in err and len(err.strip().splitlines()) == 1
+
+
+def test_analyze_accepts_the_runs_evaluate_accepts(smoke_runs, tmp_path, capsys):
+    """A run whose checkpoints were deleted to save space keeps its policy snapshots: evaluate
+    reads its policy from the latest one, and analyze takes the same run."""
+    import shutil
+
+    run = tmp_path / "snapshots_only"
+    shutil.copytree(smoke_runs[1], run, ignore=shutil.ignore_patterns(".lock"))
+    shutil.rmtree(run / "checkpoints")
+    assert main(["evaluate", str(run), "--episodes", "1", "--json"]) == 0
+    evaluated = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert evaluated["step"] == 300
+    argv = ["analyze", str(run), "--out", str(tmp_path / "r"), "--episodes", "1", "--bins", "3",
+            "--grid", "2", "--grid-rollouts", "1", "--grid-steps", "5"]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    assert (tmp_path / "r" / "report.html").is_file()
 
 
 def test_figures_and_text_files_use_a_unique_temporary_name(tmp_path):

@@ -82,8 +82,9 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
             f"runs of different environments: {listing}; analyze one environment at a time"
         )
     for r in runs:
-        if checkpoint.latest_step(r.run_dir) is None:
-            raise runner.RunError(f"{r.run_dir} has no checkpoints: train it first")
+        if checkpoint.latest_policy_step(r.run_dir) is None:  # what evaluate accepts too
+            raise runner.RunError(f"{r.run_dir} has no checkpoint or policy snapshot: train "
+                                  "it first")  # fmt: skip
         r.group = group_label(r.config)
     return runs
 
