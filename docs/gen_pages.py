@@ -61,7 +61,7 @@ def claims_section(claims: dict[str, Any]) -> list[str]:
     """The paper's claims: summary, verdict counts, headline claims, world models, cells."""
     cells = claims["cells"]
     counts = Counter(c["verdict"] for c in cells)
-    out = ["## The paper's claims", "", *claims["summary"], "",
+    out = ["## The paper's claims", "", "\n\n".join(claims["summary"]), "",
            table(["verdict", "table cells"], [[v, counts.get(v, 0)] for v in VERDICTS]), "",
            "### Headline claims", "",
            table(["claim", "paper", "ours", "verdict", "why"],
@@ -140,9 +140,10 @@ def results_page() -> str:
     head = ["# Results", "",
             "Generated from `experiments/results/*.json` at every build of this site. How the "
             "runs were made, and the commands that resume or extend them, are on "
-            "[Reproducing the paper](reproducing.md). Metric scales differ from the paper's "
-            "(our energy and norms are per-step means; the paper's tables are not), so MA's "
-            "effect is compared by its direction against MB-MPO, not by magnitude.",
+            "[Reproducing the paper](reproducing.md). Metric scales differ from the paper's by "
+            "10x to 10,000x (the paper's own energy for one agent reads 4.54 in its Table 1 and "
+            "363 in Table S5), so MA's effect is compared by its direction against MB-MPO, not "
+            "by magnitude.",
             f"The full verdict table with each cell's reasoning is "
             f"[paper_claims.md]({REPO_URL}/experiments/results/paper_claims.md).", ""]  # fmt: skip
     return "\n".join(head + claims_section(claims) + [""] + study_sections()) + "\n"

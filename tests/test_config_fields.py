@@ -172,3 +172,60 @@ def test_values_at_the_edges_of_their_rules_train_a_chunk(tmp_path):
     run = api.train(preset="smoke", total_steps=300, ma_alpha=1.0, out=str(tmp_path / "edge"),
                     overrides=overrides, log=lambda _: None)  # fmt: skip
     assert run.metrics[-1]["step"] == 300
+
+
+def _train_or_diverge(config: TrainConfig, out: str) -> None:
+    """Trains ``config`` for its smoke length; a drawn value may make training go non-finite,
+    which must end in the NaN guard's one-line error, never in another exception."""
+    from minatt_jax import runner
+    from minatt_jax.run_files import DivergedError
+
+    try:
+        runner.train(config, out, log=lambda _: None)
+    except DivergedError as e:
+        assert "\n" not in str(e) and "non-finite" in str(e)
+        return
+    records = runner.read_metrics(out)
+    assert records and records[-1]["step"] == config.planned_steps
+
+
+def _swept_without_recompiling() -> list[tuple[str, fields.Rule]]:
+    from minatt_jax.agents import registry
+
+    swept = set(registry.get("sac").hyper.values())
+    return [(name, rule) for name, rule in FIELDS if name in swept]
+
+
+@pytest.mark.slow
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_admissible_values_of_the_swept_fields_train_a_smoke_chunk(tmp_path_factory, data):
+    """Every admissible draw of the fields a population sweeps (MA's weight, the learning rates)
+    trains a 300-step smoke chunk or stops in the NaN guard; one compiled program serves all."""
+    overrides = [f"{name}={as_text(data.draw(values(rule, True), label=name))}"
+                 for name, rule in _swept_without_recompiling()]  # fmt: skip
+    config = resolve(apply_overrides(BASE, [*overrides, "total_steps=300", "eval_every=300"]))
+    _train_or_diverge(config, str(tmp_path_factory.mktemp("drawn")))
+
+
+@pytest.mark.extended
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(drawn())
+def test_an_admissible_value_of_any_field_trains_a_smoke_chunk(tmp_path_factory, case):
+    """Any field's admissible value (one field at a time, the others at the smoke preset) is
+    refused by a cross-field rule naming its group, or trains a smoke chunk (most of them
+    compile their own program: an extended test)."""
+    name, rule, inside, value = case
+    if not inside:
+        return
+    text = "none" if value is None else as_text(value)
+    try:
+        config = resolve(apply_overrides(BASE, [f"{name}={text}"]))
+        config = resolve(apply_overrides(config, ["total_steps=300", "eval_every=300"]))
+    except ValueError as e:
+        assert "\n" not in str(e)
+        return
+    sizes = value if isinstance(value, tuple) else (value,)
+    if any(isinstance(v, int) and not isinstance(v, bool) and v > 512 for v in sizes):
+        return  # a size this large (networks, batches, episodes) is beyond a test's memory
+    _train_or_diverge(config, str(tmp_path_factory.mktemp("drawn")))
