@@ -171,19 +171,20 @@ def _sign(diff: float) -> str:
 
 
 def verdict(claimed: str, ev: dict[str, Any] | None, stage: int, paper_p: float = 0.0,
-            p_holm: float = float("nan")) -> tuple[str, str, str | None]:  # fmt: skip
+            p_holm: float = float("nan"), tests: dict[str, Any] | None = None,
+            ) -> tuple[str, str, str | None]:  # fmt: skip
     """(verdict, reason, our direction) for a claimed direction of MA - MB-MPO (see the module
     docstring). ``paper_p``: the paper's own test of its difference; ``p_holm``: our corrected
     permutation p-value (NaN: not tested at the paper's stage with enough seeds). Our direction
     is the sign of our difference where the corrected test is significant, else "unresolved";
-    None without evidence."""
+    None without evidence. ``tests``: ``tested(ev)`` where the caller computed it already."""
     if not stats.significant(paper_p, LEVEL):
         where = "" if ev is None else f" (ours: {_sign(ev['ma']['mean'] - ev['mbmpo']['mean'])})"
         return ("no claim in the paper", f"the paper's own difference is not significant "
                 f"(Welch p = {paper_p:.2g}, n = {PAPER_SEEDS}){where}", None)  # fmt: skip
     if ev is None:
         return "not tested", "no run at any scale yet", None
-    t = tested(ev)
+    t = tests if tests is not None else tested(ev)
     n = min(ev["ma"]["n"], ev["mbmpo"]["n"])
     wlo, whi = t["welch_ci"]
     said = (f"difference {t['diff']:.3g}, Welch [{wlo:.3g}, {whi:.3g}], permutation "
@@ -221,11 +222,14 @@ def judged_pairs(pairs: list[tuple[str, dict[str, Any], float]], stage: int
                  ) -> list[tuple[str, str]]:  # fmt: skip
     """(verdict, reason) for each (claimed, evidence, paper's p-value) of one claim's family:
     the permutation p-values of those testable at ``stage`` Holm-corrected together."""
-    cells = [{"claimed": claimed, "ev": ev, "paper_p": paper_p,
-              "p": tested(ev)["p"] if _testable(ev, stage, paper_p) else float("nan")}
-             for claimed, ev, paper_p in pairs]  # fmt: skip
+    cells = []
+    for claimed, ev, paper_p in pairs:
+        t = tested(ev) if ev is not None else None
+        p = t["p"] if _testable(ev, stage, paper_p) else float("nan")
+        cells.append({"claimed": claimed, "ev": ev, "paper_p": paper_p, "p": p, "tests": t})
     corrected(cells, lambda c: ())
-    return [verdict(c["claimed"], c["ev"], stage, c["paper_p"], c["p_holm"])[:2] for c in cells]
+    return [verdict(c["claimed"], c["ev"], stage, c["paper_p"], c["p_holm"], c["tests"])[:2]
+            for c in cells]  # fmt: skip
 
 
 def _testable(ev: dict[str, Any] | None, stage: int, paper_p: float) -> bool:
@@ -245,19 +249,20 @@ def table_claims(srcs: list[dict]) -> list[dict[str, Any]]:
         for m in paper_numbers.METRICS:
             claimed, paper_p = paper_claim(row[m], base[m])
             ev = evidence(srcs, env, phase, stage, alpha, m)
-            p = tested(ev)["p"] if _testable(ev, stage, paper_p) else float("nan")
+            t = tested(ev) if ev is not None else None
+            p = t["p"] if _testable(ev, stage, paper_p) else float("nan")
             claims.append({
                 "env": env, "phase": phase, "stage": stage, "alpha": alpha, "metric": m,
                 "paper_mbmpo": base[m], "paper_ma": row[m], "claimed": claimed,
-                "paper_p": paper_p, "ours": ev, "p": p,
+                "paper_p": paper_p, "ours": ev, "p": p, "tests": t,
             })  # fmt: skip
     corrected(claims, lambda c: (c["env"], c["phase"], c["stage"], c["alpha"]))
     for c in claims:
         c["verdict"], c["reason"], c["direction"] = verdict(
-            c["claimed"], c["ours"], c["stage"], c["paper_p"], c["p_holm"]
+            c["claimed"], c["ours"], c["stage"], c["paper_p"], c["p_holm"], c["tests"]
         )
-        if c["ours"]:
-            c["tests"] = tested(c["ours"])
+        if c["tests"] is None:
+            del c["tests"]
     return claims
 
 
