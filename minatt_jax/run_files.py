@@ -114,17 +114,18 @@ RUN_OWN = (*RESULT_FILES, ".lock", "checkpoints", "checkpoints_ahead", "policy_s
            "meta_test", "tensorboard")  # fmt: skip
 
 
-def check_not_run_file(run_dir: str, out: str) -> None:
+def check_not_run_file(run_dir: str, out: str, example: str = "policy.npz") -> None:
     """RunError when ``out`` is one of ``run_dir``'s own files or inside its own folders
-    (``RUN_OWN``): an export or a rollout written there would leave the run unusable. Other
-    names inside the run directory (``RUN/policy.npz``) are allowed."""
+    (``RUN_OWN``): an export or a report written there would leave the run unusable. Other
+    names inside the run directory (``RUN/policy.npz``, ``RUN/report``) are allowed; the
+    message suggests ``RUN/<example>``."""
     run = os.path.realpath(run_dir)
     target = os.path.realpath(out)
     relative = os.path.relpath(target, run)
     if relative == "." or relative.split(os.sep)[0] in RUN_OWN:
         raise RunError(
             f"{out} is the run's own {'directory' if relative == '.' else 'file'} "
-            f"({relative}); write the output elsewhere, e.g. {run_dir}/policy.npz"
+            f"({relative}); write the output elsewhere, e.g. {os.path.join(run_dir, example)}"
         )
 
 

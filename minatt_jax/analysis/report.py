@@ -317,7 +317,7 @@ def check_inputs(run_dirs: list[str], out_dir: str) -> None:
             raise runner.RunError(f"{d} is given twice (as {seen[real]} too): each run counts as "
                                   "one seed")  # fmt: skip
         seen[real] = d
-        run_files.check_not_run_file(d, out_dir)
+        run_files.check_not_run_file(d, out_dir, example="report")
 
 
 def analyze(
