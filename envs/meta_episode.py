@@ -1,0 +1,121 @@
+"""Meta-episodes: k episodes of one task back to back, for agents that adapt in context.
+
+A meta-RL agent with memory (MAMBA, a recurrent policy) identifies its task from what it lived
+through: the meta-episode keeps the task fixed for ``episodes`` episodes of at most
+``episode_steps`` steps each. When an inner episode ends (termination or its step limit) the
+simulator is reset on the same task, but the meta-episode goes on: ``done`` is set only when the
+last inner episode ends, so a collector that resets an agent's memory where ``done`` is set
+carries that memory across the inner boundaries and resets it between meta-episodes.
+
+The agent sees the boundary: each observation is the environment's followed by
+
+* the reward of the step that led to it (0 on an episode's first step),
+* the previous action (zeros on an episode's first step),
+* a first-step flag (1 on the first step of every inner episode),
+* the inner episode's index scaled to [0, 1] (index / (episodes - 1); 0 for one episode),
+
+as MAMBA's observation carries the reward, the previous action and the episode boundary.
+``metrics["meta_episode_index"]`` holds the index of the episode each step belongs to, so an
+evaluation splits a meta-episode's return by episode (``returns_by_episode``): the in-context
+adaptation curve.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import State
+
+EXTRA = 3  # reward, first-step flag, episode index; the previous action adds action_size
+
+
+class MetaEpisode:
+    """``env`` run as meta-episodes of ``episodes`` inner episodes of ``episode_steps`` steps.
+
+    Keeps the wrapped environment's interface (``reset(rng, task)``, ``step``, sizes, ``dt``,
+    tasks); every other attribute is the wrapped environment's.
+    """
+
+    def __init__(self, env: Any, episodes: int, episode_steps: int) -> None:
+        if episodes < 1 or episode_steps < 1:
+            raise ValueError(f"a meta-episode needs episodes >= 1 and episode_steps >= 1, got "
+                             f"{episodes} and {episode_steps}")  # fmt: skip
+        self.env = env
+        self.episodes = int(episodes)
+        self.episode_steps = int(episode_steps)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.env, name)
+
+    @property
+    def observation_size(self) -> int:
+        return self.env.observation_size + self.env.action_size + EXTRA
+
+    @property
+    def action_size(self) -> int:
+        return self.env.action_size
+
+    @property
+    def max_steps(self) -> int:
+        """The steps of a whole meta-episode (the collector's episode limit)."""
+        return self.episodes * self.episode_steps
+
+    def _observe(self, inner: State, reward: jax.Array, action: jax.Array, first: jax.Array,
+                 index: jax.Array) -> jax.Array:  # fmt: skip
+        scale = 1.0 / max(self.episodes - 1, 1)
+        extra = jnp.stack([reward, first, index * scale]).astype(inner.obs.dtype)
+        return jnp.concatenate([inner.obs, action.astype(inner.obs.dtype), extra])
+
+    def _wrap(self, inner: State, reward: jax.Array, done: jax.Array, action: jax.Array,
+              first: jax.Array, index: jax.Array, step: jax.Array, rng: jax.Array,
+              belongs_to: jax.Array) -> State:  # fmt: skip
+        info = {"inner": inner, "meta_index": index, "meta_step": step, "meta_rng": rng,
+                "task": inner.info["task"]}  # fmt: skip
+        metrics = {**inner.metrics, "meta_episode_index": belongs_to.astype(jnp.float32)}
+        obs = self._observe(inner, reward, action, first, index)
+        return State(inner.pipeline_state, obs, reward, done, metrics, info)
+
+    def reset(self, rng: jax.Array, task: Any = None) -> State:
+        """The first step of a meta-episode on ``task``."""
+        rng, key = jax.random.split(rng)
+        inner = self.env.reset(key, task)
+        zero = jnp.zeros((), jnp.float32)
+        index = jnp.zeros((), jnp.int32)
+        return self._wrap(inner, zero, zero, jnp.zeros(self.action_size), jnp.ones(()), index,
+                          index, rng, index)  # fmt: skip
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One step; an inner episode that ends restarts the simulator on the same task."""
+        inner = self.env.step(state.info["inner"], action)
+        index, step = state.info["meta_index"], state.info["meta_step"] + 1
+        inner_ended = (inner.done > 0) | (step >= self.episode_steps)
+        last = index >= self.episodes - 1
+        rng, key = jax.random.split(state.info["meta_rng"])
+        restart = inner_ended & ~last
+
+        def next_episode(_: None) -> State:
+            fresh = self.env.reset(key, state.info["task"])
+            # the step's reward and metrics stay the ended episode's; its state is the fresh one
+            return fresh.replace(reward=inner.reward, metrics=inner.metrics)
+
+        inner_next = jax.lax.cond(restart, next_episode, lambda _: inner, None)
+        done = (inner_ended & last).astype(jnp.float32)
+        first = restart.astype(jnp.float32)
+        new_index = index + restart.astype(jnp.int32)
+        new_step = jnp.where(restart, 0, step)
+        prev_action = jnp.where(restart, jnp.zeros_like(action), action)
+        reward = jnp.where(restart, 0.0, inner.reward)  # a fresh episode's first step saw none
+        wrapped = self._wrap(inner_next, reward, done, prev_action, first, new_index, new_step,
+                             rng, index)  # fmt: skip
+        # the reward of the step itself (what a learner sums) is the inner episode's
+        return wrapped.replace(reward=inner.reward)
+
+
+def returns_by_episode(rewards: jax.Array, episode_index: jax.Array, alive: jax.Array,
+                       episodes: int) -> jax.Array:  # fmt: skip
+    """Each inner episode's return, (episodes,), from a meta-episode's per-step rewards, the
+    ``meta_episode_index`` metric and the ``alive`` mask of ``acting.unroll``."""
+    onehot = jax.nn.one_hot(episode_index.astype(jnp.int32), episodes)
+    return jnp.sum((rewards * alive)[..., None] * onehot, axis=-2)
