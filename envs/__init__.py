@@ -20,8 +20,10 @@ from minatt_jax.envs.cheetah_run import CheetahRun
 from minatt_jax.envs.halfcheetah import HalfCheetah
 from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid, HumanoidFull
+from minatt_jax.envs.humanoid_dir import HumanoidDir
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, MissingModelError, PhysicsOptions
 from minatt_jax.envs.task_sets import (
+    TARGET_SET_NAMES,
     TASK_FIELDS,
     TASK_SET_NAMES,
     TaskSpecError,
@@ -29,6 +31,7 @@ from minatt_jax.envs.task_sets import (
     resolve_tasks,
     task_list,
     task_set,
+    task_set_names,
 )
 from minatt_jax.envs.tasks import (
     Task,
@@ -49,6 +52,7 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
     "humanoid": Humanoid,
     "humanoid_376": HumanoidFull,
     "cheetah_run": CheetahRun,
+    "humanoid_dir": HumanoidDir,
 }
 ENV_NAMES = tuple(ENVIRONMENTS)
 
@@ -84,22 +88,23 @@ def make(name: str, physics: str | PhysicsOptions | None = None) -> LocomotionEn
 
 def check_task_set_name(set_name: str) -> None:
     """Raises UnknownNameError for a task-set name that does not exist."""
-    if set_name not in TASK_SET_NAMES:
-        raise UnknownNameError(
-            f"unknown variant {set_name!r}; choose from {', '.join(TASK_SET_NAMES)}"
-        )
+    names = TASK_SET_NAMES + TARGET_SET_NAMES
+    if set_name not in names:
+        raise UnknownNameError(f"unknown variant {set_name!r}; choose from {', '.join(names)}")
 
 
 __all__ = [
     "ENV_NAMES",
     "ENVIRONMENTS",
     "PHYSICS_PRESETS",
+    "TARGET_SET_NAMES",
     "TASK_FIELDS",
     "TASK_SET_NAMES",
     "CheetahRun",
     "HalfCheetah",
     "Hopper",
     "Humanoid",
+    "HumanoidDir",
     "HumanoidFull",
     "LocomotionEnv",
     "PhysicsOptions",
@@ -121,4 +126,5 @@ __all__ = [
     "stack_tasks",
     "task_list",
     "task_set",
+    "task_set_names",
 ]

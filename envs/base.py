@@ -85,6 +85,11 @@ class LocomotionEnv(Env, abc.ABC):
     # qvel indices of forward velocity and torso pitch rate (planar root: x, z, pitch).
     failure_qvel_indices: tuple[int, int] = (0, 2)
     crippled_joints: tuple[tuple[str, ...], ...] = ()
+    # Meta-RL environments whose tasks carry a target (``Task.target``): its nominal value;
+    # None for the others, whose tasks have none.
+    default_target: float | None = None
+    # ctrl = action_scale * action (the policy acts in [-1, 1]); the control cost reads ctrl.
+    action_scale: float = 1.0
 
     def __init__(self, physics: str | mjcf.PhysicsOptions | None = None) -> None:
         physics = self.default_physics if physics is None else physics
@@ -100,7 +105,7 @@ class LocomotionEnv(Env, abc.ABC):
         self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
         self._init_qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
         self._init_qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
-        self._nominal_task = make_task(self.mj_model)
+        self._nominal_task = self.make_task()
         data = mjx.make_data(self.mjx_model, device=self.device)
         self._obs_size = int(self.observation(data).shape[-1])
 
@@ -122,8 +127,27 @@ class LocomotionEnv(Env, abc.ABC):
         return self._nominal_task
 
     def make_task(self, **scales: Any) -> Task:
-        """A task for this environment; keywords as :func:`minatt_jax.envs.tasks.make_task`."""
+        """A task for this environment; keywords as :func:`minatt_jax.envs.tasks.make_task`
+        (an environment with targets gets its ``default_target`` where none is given)."""
+        if self.default_target is None:
+            if scales.get("target") is not None:
+                raise ValueError(f"{self.name}'s tasks take no target")
+        else:
+            scales.setdefault("target", self.default_target)
         return make_task(self.mj_model, **scales)
+
+    def target_tasks(self, set_name: str) -> tuple[list[Task], list[str]] | None:
+        """The tasks and labels of a task set this environment defines itself (a meta-RL
+        environment's targets), or None for the perturbation sets every environment shares."""
+        del set_name
+        return None
+
+    def task_reward_terms(self, model: mjx.Model, before: mjx.Data, after: mjx.Data,
+                          ctrl: jax.Array, task: Task) -> dict[str, jax.Array]:  # fmt: skip
+        """The reward terms under ``task``: ``reward_terms``'s, for environments whose reward
+        does not read the task (a meta-RL environment's reads its target)."""
+        del task
+        return self.reward_terms(model, before, after, ctrl)
 
     def reset(self, rng: jax.Array, task: Task | None = None) -> State:
         """Initial state with Gym v3 reset noise; ``task`` defaults to the nominal task."""
@@ -151,9 +175,10 @@ class LocomotionEnv(Env, abc.ABC):
         def physics_step(data: mjx.Data, _: None) -> tuple[mjx.Data, None]:
             return mjx.step(model, data), None
 
-        data, _ = jax.lax.scan(physics_step, data0.replace(ctrl=action), None, self.frame_skip)
+        ctrl = action if self.action_scale == 1.0 else self.action_scale * action
+        data, _ = jax.lax.scan(physics_step, data0.replace(ctrl=ctrl), None, self.frame_skip)
         data = self.complete(model, data)
-        terms = self.reward_terms(model, data0, data, action)
+        terms = self.task_reward_terms(model, data0, data, ctrl, state.info["task"])
         healthy = self.is_healthy(data)
         reward = (
             self.weights.forward * terms["forward"]

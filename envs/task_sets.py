@@ -13,6 +13,9 @@ from minatt_jax.envs.base import LocomotionEnv
 from minatt_jax.envs.tasks import Task, stack_tasks
 
 TASK_SET_NAMES = ("nominal", "train", "mass", "crippled", "slope")
+# Sets only meta-RL environments define (``LocomotionEnv.target_tasks``): targets outside the
+# training range.
+TARGET_SET_NAMES = ("ood",)
 
 TRAIN_GRAVITY_FRICTION = ((1.00, 1.00), (0.90, 0.90), (0.95, 1.10), (1.05, 0.90), (1.10, 1.10))
 MASS_SCALES = (0.5, 0.75, 1.25, 1.5, 2.0)
@@ -31,8 +34,18 @@ def _actuator_scale(env: LocomotionEnv, joints: tuple[str, ...]) -> np.ndarray:
     return np.asarray(scale)
 
 
+class TaskSpecError(ValueError):
+    """A custom task specification that cannot be read (a user-facing error)."""
+
+
 def task_list(env: LocomotionEnv, set_name: str) -> tuple[list[Task], list[str]]:
     """The tasks of ``set_name`` for ``env`` and a short label for each."""
+    own = env.target_tasks(set_name)
+    if own is not None:
+        return own
+    if set_name in TARGET_SET_NAMES:
+        raise TaskSpecError(f"{env.name} has no {set_name!r} task set: it holds the targets of a "
+                            "meta-RL environment (humanoid_dir)")  # fmt: skip
     if set_name == "nominal":
         return [env.nominal_task()], ["nominal"]
     if set_name == "train":
@@ -60,18 +73,16 @@ TASK_FIELDS = {
     "gravity": "gravity_scale",
     "slope": "slope",
     "crippled": "actuator_scale",
+    "target": "target",
 }
-
-
-class TaskSpecError(ValueError):
-    """A custom task specification that cannot be read (a user-facing error)."""
 
 
 def parse_task(env: LocomotionEnv, spec: str) -> tuple[Task, str]:
     """One custom task from ``"field=value[,field=value...]"`` and its label.
 
     Fields: ``mass``, ``friction``, ``gravity`` (scales, > 0), ``slope`` (radians, positive =
-    uphill) and ``crippled`` (joint names joined by ``+``, e.g. ``crippled=bthigh+bshin``).
+    uphill), ``crippled`` (joint names joined by ``+``, e.g. ``crippled=bthigh+bshin``) and, for
+    a meta-RL environment, ``target`` (humanoid_dir: the running direction in radians).
     Example: ``mass=1.25,slope=0.12``.
     """
     fields: dict[str, object] = {}
@@ -117,6 +128,11 @@ def resolve_tasks(
         pairs = [parse_task(env, s) for s in specs]
         return [t for t, _ in pairs], [label for _, label in pairs]
     return task_list(env, set_name)
+
+
+def task_set_names(env: LocomotionEnv) -> tuple[str, ...]:
+    """The task sets ``env`` has: every environment's, and its own targets' where it has any."""
+    return TASK_SET_NAMES + (TARGET_SET_NAMES if env.default_target is not None else ())
 
 
 def task_set(env: LocomotionEnv, set_name: str) -> Task:

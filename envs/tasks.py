@@ -48,6 +48,10 @@ class Task:
     body_subtreemass: jax.Array  # (nbody,)
     body_invweight0: jax.Array  # (nbody, 2)
     dof_invweight0: jax.Array  # (nv,)
+    # What a meta-RL task asks for, read by the environment's reward (humanoid_dir: the running
+    # direction in radians). None for the perturbation tasks: a None field has no leaves, so
+    # their pytrees, and the checkpoints that hold them, are what they were without it.
+    target: jax.Array | None = None
 
 
 def make_task(
@@ -57,11 +61,13 @@ def make_task(
     gravity_scale: float = 1.0,
     slope: float = 0.0,
     actuator_scale: float | np.ndarray = 1.0,
+    target: float | np.ndarray | None = None,
 ) -> Task:
     """A task for ``mj_model``, with the mass-derived constants from MuJoCo's ``mj_setConst``.
 
     Scalars broadcast: ``mass_scale`` to every body, ``actuator_scale`` to every actuator.
-    Raises ValueError for non-finite or non-positive scales.
+    ``target``: what a meta-RL environment's reward reads (None for the others). Raises
+    ValueError for non-finite or non-positive scales and a non-finite target.
     """
     mass = np.broadcast_to(np.asarray(mass_scale, np.float64), (mj_model.nbody,)).copy()
     act = np.broadcast_to(np.asarray(actuator_scale, np.float64), (mj_model.nu,)).copy()
@@ -71,6 +77,8 @@ def make_task(
             raise ValueError(f"{label} must be finite and positive, got {value}")
     if not np.all(np.isfinite(act)) or np.any(act < 0):
         raise ValueError(f"actuator_scale must be finite and >= 0, got {act}")
+    if target is not None and not np.all(np.isfinite(target)):
+        raise ValueError(f"target must be finite, got {target}")
     if not abs(slope) < np.pi / 2:
         raise ValueError(f"slope must be in (-pi/2, pi/2) radians, got {slope}")
     scaled = copy.copy(mj_model)
@@ -87,6 +95,7 @@ def make_task(
         body_subtreemass=f32(scaled.body_subtreemass),
         body_invweight0=f32(scaled.body_invweight0),
         dof_invweight0=f32(scaled.dof_invweight0),
+        target=None if target is None else f32(target),
     )
 
 

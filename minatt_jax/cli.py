@@ -62,7 +62,7 @@ _non_negative_float = _number(float, 0.0, False, "a finite number >= 0")
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser for all subcommands."""
     from minatt_jax.agents import registry
-    from minatt_jax.envs import ENV_NAMES, PHYSICS_PRESETS, TASK_SET_NAMES
+    from minatt_jax.envs import ENV_NAMES, PHYSICS_PRESETS, TARGET_SET_NAMES, TASK_SET_NAMES
 
     parser = _Parser(prog="minatt-jax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -73,7 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_roll = sub.add_parser("rollout", help="run a zero or random policy on a task set")
     p_roll.add_argument("--env", required=True, help=f"one of {', '.join(ENV_NAMES)}")
     p_roll.add_argument(
-        "--variant", default="nominal", help=f"task set: one of {', '.join(TASK_SET_NAMES)}"
+        "--variant",
+        default="nominal",
+        help=f"task set: one of {', '.join(TASK_SET_NAMES + TARGET_SET_NAMES)}",
     )
     p_roll.add_argument(
         "--task", action="append", default=[], metavar="SPEC",
@@ -255,7 +257,7 @@ def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
             "action_size": env.action_size,
             "dt": env.dt,
             "frame_skip": env.frame_skip,
-            "task_sets": {s: envs.task_list(env, s)[1] for s in envs.TASK_SET_NAMES},
+            "task_sets": {s: envs.task_list(env, s)[1] for s in envs.task_set_names(env)},
         }
     if args.json:
         print(json.dumps(table, indent=2))
