@@ -22,6 +22,7 @@ from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid, HumanoidFull
 from minatt_jax.envs.humanoid_dir import HumanoidDir
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, MissingModelError, PhysicsOptions
+from minatt_jax.envs.point_robot import PointRobot
 from minatt_jax.envs.task_sets import (
     TARGET_SET_NAMES,
     TASK_FIELDS,
@@ -53,6 +54,7 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
     "humanoid_376": HumanoidFull,
     "cheetah_run": CheetahRun,
     "humanoid_dir": HumanoidDir,
+    "point_robot": PointRobot,
 }
 ENV_NAMES = tuple(ENVIRONMENTS)
 
@@ -97,6 +99,7 @@ __all__ = [
     "ENV_NAMES",
     "ENVIRONMENTS",
     "PHYSICS_PRESETS",
+    "PointRobot",
     "TARGET_SET_NAMES",
     "TASK_FIELDS",
     "TASK_SET_NAMES",

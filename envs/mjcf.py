@@ -67,6 +67,7 @@ PHYSICS_PRESETS: dict[str, PhysicsOptions] = {
 MODEL_PACKAGES = {
     "gymnasium": (("envs", "mujoco", "assets"), "reinstall minatt-jax with its dependencies"),
     "dm_control": (("suite",), "pip install 'minatt-jax[dmc]' (the DeepMind Control Suite)"),
+    "minatt_jax.envs": (("assets",), "reinstall minatt-jax (its model files are package data)"),
 }
 
 

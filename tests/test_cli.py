@@ -66,7 +66,7 @@ def test_console_script_error_has_no_traceback():
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines() == [
         "minatt-jax: error: unknown environment 'ant'; choose from hopper, halfcheetah, "
-        "walker2d, humanoid, humanoid_376, cheetah_run, humanoid_dir"
+        "walker2d, humanoid, humanoid_376, cheetah_run, humanoid_dir, point_robot"
     ]
 
 
