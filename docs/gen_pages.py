@@ -11,10 +11,15 @@ import glob
 import json
 import math
 import os
+import sys
 from collections import Counter
 from typing import Any
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "experiments"))  # the studies' helpers: stage names
+
+from study import stage_label as stage_name  # noqa: E402
+
 REPO_URL = "https://github.com/minatt-jax/minatt-jax/blob/main"
 VERDICTS = ("reproduced", "not reproduced", "inconclusive at this scale", "not tested",
             "no claim in the paper")  # fmt: skip
@@ -51,10 +56,6 @@ def stat(s: dict[str, Any] | None) -> str:
     if not s:
         return "-"
     return f"{fmt(s['mean'])} +- {fmt(s['std'])} (n={s['n']})"
-
-
-def stage_name(step: int) -> str:
-    return f"{step // 1000}K" if step % 1000 == 0 else str(step)
 
 
 def claims_section(claims: dict[str, Any]) -> list[str]:

@@ -125,6 +125,9 @@ def paper_cell(number: tuple[float, float] | None) -> str:
 
 
 def stage_label(step: int) -> str:
+    """10000 -> "10K", 2500000 -> "2.5M" (the paper's way of naming its stages)."""
+    if step >= 1_000_000 and step % 100_000 == 0:
+        return f"{step / 1_000_000:g}M"
     return f"{step // 1000}K" if step % 1000 == 0 else str(step)
 
 
