@@ -412,7 +412,6 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
     """The policy of ``run_dir`` at ``step`` (default: the latest checkpoint) without building a
     trainer: from the step's policy snapshot, or from the checkpoint's items that hold the policy
     alone when there is no snapshot. No replay or model buffer is allocated."""
-    import minatt_jax.envs as envs
     from minatt_jax.agents import registry
 
     config = run_files.load_config(run_dir)
@@ -420,7 +419,7 @@ def load_policy(run_dir: str, step: int | None = None) -> Policy:
         step = latest_policy_step(run_dir)
         if step is None:
             raise CheckpointError(f"no checkpoint or policy snapshot in {run_dir}")
-    env = envs.make(config.env, config.physics)
+    env = config.make_env()
     kind = registry.get(config.algo).policy(config, env)
     if step in snapshot_steps(run_dir):
         params, norm = load_policy_snapshot(run_dir, step, kind.like)

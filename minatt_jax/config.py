@@ -137,6 +137,9 @@ class TrainConfig:
     warmup_steps: int = setting(5_000, ge=0)
     buffer_size: int = setting(1_000_000, ge=1)
     max_episode_steps: int = setting(1000, ge=1)
+    # Episodes of one task per meta-episode (envs.meta_episode): an agent with memory adapts in
+    # context across them; each lasts at most max_episode_steps. 1: plain episodes.
+    meta_episodes: int = setting(1, ge=1)
     eval_every: int = setting(5_000, ge=1)
     eval_episodes: int = setting(5, ge=1)
     noise: str = setting("gaussian", choices=("gaussian", "ou"))  # SAC's own sampling, or OU
@@ -153,6 +156,22 @@ class TrainConfig:
         check(self, "")
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
+
+    @property
+    def episode_limit(self) -> int:
+        """The steps a collector or an evaluation lets one episode run: a whole meta-episode."""
+        return self.meta_episodes * self.max_episode_steps
+
+    def make_env(self) -> Any:
+        """The run's environment: ``env`` with its ``physics``, in meta-episodes of
+        ``meta_episodes`` episodes where that is above 1."""
+        import minatt_jax.envs as envs
+        from minatt_jax.envs.meta_episode import MetaEpisode
+
+        env = envs.make(self.env, self.physics)
+        if self.meta_episodes > 1:
+            env = MetaEpisode(env, self.meta_episodes, self.max_episode_steps)
+        return env
 
     @property
     def planned_steps(self) -> int:

@@ -10,7 +10,9 @@ Sm = 2 / (n f_s) * sum_i M_i f_i over the n one-sided FFT bins of each action di
 convention of Mysore et al. (2021); the other one seen in code (M_i = |X_i| without the 2 / N) is
 larger by N / 4 for N-step episodes.
 
-Metrics are mean and std over episodes; seeds are aggregated by the caller.
+Metrics are mean and std over episodes; seeds are aggregated by the caller. A run in
+meta-episodes (``TrainConfig.meta_episodes``) evaluates whole meta-episodes and adds
+``return_episode_<i>``, each inner episode's return: the in-context adaptation curve.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from flax import struct
 import minatt_jax.envs as envs
 from minatt_jax import acting, memory
 from minatt_jax import normalizer as obs_norm
+from minatt_jax.envs.meta_episode import returns_by_episode
 
 METRIC_NAMES = ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk")
 
@@ -68,10 +71,17 @@ def make_evaluator(
     dt = env.dt
     check_episodes_fit(env, episodes, max_steps)
 
+    inner_episodes = getattr(env, "episodes", 1)  # a meta-episode's (envs.meta_episode)
+
     def episode(params: Any, norm: Any, key: jax.Array, task: envs.Task):
         policy = policy_of(params, norm)
         traj = acting.unroll(env, policy, env.reset(key, task), max_steps, probe_feedback=True)
-        return acting.episode_metrics(traj, dt), traj.action, traj.alive
+        metrics = acting.episode_metrics(traj, dt)
+        if inner_episodes > 1:  # the in-context adaptation curve: each inner episode's return
+            returns = returns_by_episode(traj.reward, traj.env_metrics["meta_episode_index"],
+                                         traj.alive, inner_episodes)  # fmt: skip
+            metrics |= {f"return_episode_{i + 1}": returns[i] for i in range(inner_episodes)}
+        return metrics, traj.action, traj.alive
 
     def evaluate(params, norm, key, task_set):
         k = envs.num_tasks(task_set)

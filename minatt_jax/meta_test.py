@@ -105,9 +105,9 @@ def _programs(config: Any, env: Any, family: Any, settings: MetaTestConfig) -> A
     def build() -> Any:
         spec = registry.get(config.algo)
         return types.SimpleNamespace(
-            evaluate=make_evaluator(env, family.deterministic, config.max_episode_steps,
+            evaluate=make_evaluator(env, family.deterministic, config.episode_limit,
                                     settings.episodes),
-            collect=_collector(env, family.stochastic, config.max_episode_steps, settings.shots),
+            collect=_collector(env, family.stochastic, config.episode_limit, settings.shots),
             adapter=spec.adapter(config, env, family, settings),
         )  # fmt: skip
 

@@ -475,6 +475,10 @@ def evaluate_run(
     except (envs.UnknownNameError, envs.TaskSpecError) as e:
         raise RunError(str(e)) from None
     if engine == "mujoco":
+        if config.meta_episodes > 1:
+            raise RunError(f"{run_dir} trains in meta-episodes of {config.meta_episodes} "
+                           "episodes; the C-engine evaluation runs plain episodes: evaluate it "
+                           "with --engine mjx")  # fmt: skip
         if policy.family.recurrent:
             raise RunError(
                 f"{run_dir} is a {config.algo} run: its policy is recurrent, and the C-engine "
@@ -489,7 +493,7 @@ def evaluate_run(
         # data values) evaluate without tracing and compiling again.
         evaluator = keep_latest(
             _EVALUATORS, (program_key(config), episodes),
-            lambda: make_evaluator(env, policy.family.deterministic, config.max_episode_steps,
+            lambda: make_evaluator(env, policy.family.deterministic, config.episode_limit,
                                    episodes),
         )  # fmt: skip
         result = evaluator(policy.actor_params, policy.normalizer, jax.random.PRNGKey(seed),

@@ -83,7 +83,7 @@ def make_train(config: Any) -> Trainer:
     if not config.is_resolved:
         raise ValueError("make_train needs a resolved configuration: call config.resolve first")
     spec = registry.get(config.algo)
-    env = envs.make(config.env, config.physics)
+    env = config.make_env()
     task_set = training_tasks(config, env)
     agent = spec.make(config, env, task_set)
     n = config.num_envs
@@ -121,7 +121,7 @@ def make_train(config: Any) -> Trainer:
         return jax.device_put(jax.tree.map(lambda x: jnp.array(x, copy=True), state),
                               jax.devices()[0])  # fmt: skip
 
-    evaluator = make_evaluator(env, agent.policy.deterministic, config.max_episode_steps,
+    evaluator = make_evaluator(env, agent.policy.deterministic, config.episode_limit,
                                config.eval_episodes)  # fmt: skip
 
     def evaluate(state: Any, key: jax.Array, tasks: envs.Task) -> EvalResult:

@@ -4,11 +4,14 @@ meta-episodes; each inner episode's return is recovered from the steps."""
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import minatt_jax.envs as envs
 from minatt_jax import acting
 from minatt_jax.envs.meta_episode import EXTRA, MetaEpisode, returns_by_episode
 
@@ -119,3 +122,36 @@ def test_a_collector_resets_memory_between_meta_episodes_only(wrapped):
     memory = np.asarray(memory[:, 0])
     assert memory[STEPS] == STEPS + 1  # carried over the first inner boundary
     assert memory[steps - 1] == 0 and memory[steps] == 1  # reset at the meta-episode's end
+
+
+def test_evaluation_reports_each_inner_episodes_return(make_env):
+    """The evaluator of a meta-episode run adds return_episode_<i>: here a policy that walks to
+    the goal the same way in every inner episode earns the same return in each, summing to the
+    meta-episode's."""
+    from minatt_jax.evaluation import make_evaluator, summarize
+
+    env = MetaEpisode(make_env("point_robot"), 3, 12)
+    up = acting.Policy(act=lambda x, k: jnp.array([0.0, 1.0]), control=lambda x: x[:2] * 0.0)
+    evaluate = make_evaluator(env, lambda params, norm: up, env.max_steps, 2)
+    tasks = envs.task_set(env.env, "nominal")
+    got = summarize(evaluate(None, None, jax.random.PRNGKey(0), tasks), env.dt)
+    per_episode = [got[f"return_episode_{i}"] for i in (1, 2, 3)]
+    assert per_episode[0] > 1.0 and np.allclose(per_episode, per_episode[0], rtol=1e-6)
+    assert got["return"] == pytest.approx(sum(per_episode), rel=1e-6)
+    assert got["length"] == 36
+
+
+@pytest.mark.slow
+def test_a_run_in_meta_episodes_trains_evaluates_and_is_refused_by_analyze(tmp_path, capsys):
+    from minatt_jax.cli import main
+
+    run = str(tmp_path / "meta")
+    argv = ["train", "--env", "point_robot", "--preset", "smoke", "--steps", "300",
+            "--set", "meta_episodes=3", "--set", "max_episode_steps=20", "--out", run]  # fmt: skip
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main(["evaluate", run, "--variant", "ood", "--episodes", "2", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert record["length"] == 60 and "return_episode_3" in record
+    assert main(["analyze", run, "--out", str(tmp_path / "report")]) == 2
+    assert "meta-episodes" in capsys.readouterr().err

@@ -156,7 +156,7 @@ def make(config: Any, env: Any, task_set: Any) -> Agent:
         random_action = jax.random.uniform(k_random, (n, act_size), minval=-1.0, maxval=1.0)
         action = jnp.where(steps < config.warmup_steps, random_action, policy_action)
         stepped, length, finite, ended_next = acting.step_envs(
-            env, col.env_state, action, col.episode_length, config.max_episode_steps
+            env, col.env_state, action, col.episode_length, config.episode_limit
         )
         env_state = acting.reset_ended(col.ended, reset_envs, stepped, k_reset, members_axis)
         reward = jnp.where(finite, stepped.reward, 0.0)

@@ -199,7 +199,7 @@ def model_adapter(config: Any, env: Any, family: PolicyFamily, settings: Any,
     horizon = config.mb.vpg_horizon if vpg else 1
     slots = config.model.num_elites
     per_slot = max(config.sac.batch_size // slots, 16)
-    capacity = settings.shots * config.max_episode_steps
+    capacity = settings.shots * config.episode_limit
     reads_model = vpg or config.ma.temporal == "rollout"
     like = learner_items(config, sac, hyper_names)
     like["model"] = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype),

@@ -213,7 +213,7 @@ def off_policy(
         action, ou = act(ts, keys["act"], steps)
         c = ts.collector
         s = acting.collect_step(env, c.env_state, action, c.episode_return, c.episode_length,
-                                config.max_episode_steps, reset_envs, keys["reset"],
+                                config.episode_limit, reset_envs, keys["reset"],
                                 members_axis)  # fmt: skip
         slot = c.episode_slot
         if next_slot is not None:
@@ -341,7 +341,7 @@ def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapt
     included) on batches drawn from the collected episodes."""
     sac = family.agent
     batch = config.sac.batch_size
-    capacity = settings.shots * config.max_episode_steps
+    capacity = settings.shots * config.episode_limit
     norm_on = config.sac.normalize_obs
     like = learner_items(config, sac, HYPER)
 

@@ -82,6 +82,11 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
             f"runs of different environments: {listing}; analyze one environment at a time"
         )
     for r in runs:
+        if r.config.meta_episodes > 1:
+            raise runner.RunError(
+                f"{r.run_dir} trains in meta-episodes of {r.config.meta_episodes} episodes; "
+                "analyze reads runs of plain episodes (evaluate reports each episode's return)"
+            )
         if checkpoint.latest_policy_step(r.run_dir) is None:  # what evaluate accepts too
             raise runner.RunError(f"{r.run_dir} has no checkpoint or policy snapshot: train "
                                   "it first")  # fmt: skip
@@ -94,10 +99,10 @@ class _GroupTools:
     family (the agent's ``policy``) makes them the same for feedforward and recurrent policies."""
 
     def __init__(self, config: TrainConfig, settings: AnalyzeConfig) -> None:
-        env = envs.make(config.env, config.physics)
+        env = config.make_env()
         self.family = registry.get(config.algo).policy(config, env)
         self.env, self.config = env, config
-        steps = config.max_episode_steps
+        steps = config.episode_limit
         dt = env.dt
         policy_of = self.family.deterministic
 
