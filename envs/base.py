@@ -88,6 +88,9 @@ class LocomotionEnv(Env, abc.ABC):
     # Meta-RL environments whose tasks carry a target (``Task.target``): its nominal value;
     # None for the others, whose tasks have none.
     default_target: float | None = None
+    # Their target sets: set name -> target values, and how a target reads in a task's label.
+    target_sets: dict[str, tuple[float, ...]] = {}
+    target_label: str = "target {:.3g}"
     # ctrl = action_scale * action (the policy acts in [-1, 1]); the control cost reads ctrl.
     action_scale: float = 1.0
 
@@ -138,9 +141,13 @@ class LocomotionEnv(Env, abc.ABC):
 
     def target_tasks(self, set_name: str) -> tuple[list[Task], list[str]] | None:
         """The tasks and labels of a task set this environment defines itself (a meta-RL
-        environment's targets), or None for the perturbation sets every environment shares."""
-        del set_name
-        return None
+        environment's ``target_sets``), or None for the perturbation sets every environment
+        shares."""
+        if set_name not in self.target_sets:
+            return None
+        chosen = self.target_sets[set_name]
+        return ([self.make_task(target=t) for t in chosen],
+                [self.target_label.format(t) for t in chosen])  # fmt: skip
 
     def task_reward_terms(self, model: mjx.Model, before: mjx.Data, after: mjx.Data,
                           ctrl: jax.Array, task: Task) -> dict[str, jax.Array]:  # fmt: skip

@@ -40,6 +40,8 @@ class HumanoidDir(HumanoidFull):
     name = "humanoid_dir"
     default_target = 0.0
     action_scale = 0.4
+    target_sets = {"nominal": (0.0,), "train": TRAIN_DIRECTIONS, "ood": OOD_DIRECTIONS}
+    target_label = "direction {:.4f} rad"
 
     def task_reward_terms(self, model: mjx.Model, before: mjx.Data, after: mjx.Data,
                           ctrl: jax.Array, task: Task) -> dict[str, jax.Array]:  # fmt: skip
@@ -54,11 +56,3 @@ class HumanoidDir(HumanoidFull):
         direction = jnp.stack([jnp.cos(task.target), jnp.sin(task.target)])
         velocity = (com_xy(after) - com_xy(before)) / self.dt
         return {**terms, "forward": jnp.dot(direction, velocity), "speed": velocity[0]}
-
-    def target_tasks(self, set_name: str) -> tuple[list[Task], list[str]] | None:
-        directions = {"nominal": (0.0,), "train": TRAIN_DIRECTIONS, "ood": OOD_DIRECTIONS}
-        if set_name not in directions:
-            return None
-        chosen = directions[set_name]
-        return ([self.make_task(target=d) for d in chosen],
-                [f"direction {np.degrees(d):.1f} deg" for d in chosen])  # fmt: skip

@@ -39,6 +39,8 @@ class PointRobot(LocomotionEnv):
     terminates = False
     reset_runs_forward = False
     default_target = float(np.pi / 2)
+    target_sets = {"nominal": (float(np.pi / 2),), "train": TRAIN_GOALS, "ood": OOD_GOALS}
+    target_label = "goal at {:.4f} rad"
     obs_names = ("x", "y")
     projections = (("x", "y"),)
     failure_grid_ranges = ((-0.5, 0.5), (-0.5, 0.5))
@@ -71,11 +73,3 @@ class PointRobot(LocomotionEnv):
         done = jnp.zeros((), jnp.float32)
         return state.replace(pipeline_state=data, obs=self.observation(data), reward=reward,
                              done=done, metrics=metrics, info=info)  # fmt: skip
-
-    def target_tasks(self, set_name: str) -> tuple[list[Task], list[str]] | None:
-        goals = {"nominal": (self.default_target,), "train": TRAIN_GOALS, "ood": OOD_GOALS}
-        if set_name not in goals:
-            return None
-        chosen = goals[set_name]
-        return ([self.make_task(target=g) for g in chosen],
-                [f"goal at {np.degrees(g):.0f} deg" for g in chosen])  # fmt: skip

@@ -37,6 +37,18 @@ def make_env():
     return get
 
 
+def counted_jit(fn):
+    """``jax.jit(fn)`` and the list its traces append to: a test asserts the list's length to
+    show that new data (a task, a seed, a swept value) did not recompile."""
+    traces: list[int] = []
+
+    def counted(*args):
+        traces.append(1)
+        return fn(*args)
+
+    return jax.jit(counted), traces
+
+
 def untrained_run(run: str, config, step: int) -> None:
     """A run directory made without training: ``config`` (resolved), a checkpoint and a policy
     snapshot of the initial state at ``step``, and one metrics record there."""

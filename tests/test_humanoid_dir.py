@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import counted_jit
 
 import minatt_jax.envs as envs
 from minatt_jax.envs.humanoid_dir import OOD_DIRECTIONS, TRAIN_DIRECTIONS
@@ -57,13 +58,7 @@ def test_direction_is_data_and_turns_the_forward_term(make_env):
     """One compiled step serves every direction; opposite directions give opposite forward
     terms from the same state and action, and the others their projections."""
     env = make_env("humanoid_dir")
-    traces = []
-
-    def counted(state, action):
-        traces.append(1)
-        return env.step(state, action)
-
-    step = jax.jit(counted)
+    step, traces = counted_jit(env.step)
     reset = jax.jit(env.reset)
     action = jnp.full((env.action_size,), 0.3)
     forward = {}

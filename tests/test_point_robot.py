@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import counted_jit
 
 import minatt_jax.envs as envs
 from minatt_jax.envs.point_robot import OOD_GOALS, TRAIN_GOALS
@@ -41,13 +42,7 @@ def test_steps_and_rewards_match_the_reference(make_env):
 
 def test_goals_are_data_and_crippled_axes_do_not_move(make_env):
     env = make_env("point_robot")
-    traces = []
-
-    def counted(state, action):
-        traces.append(1)
-        return env.step(state, action)
-
-    step = jax.jit(counted)
+    step, traces = counted_jit(env.step)
     reset = jax.jit(env.reset)
     for angle in (0.0, 1.0, 3.0):
         step(reset(jax.random.PRNGKey(0), env.make_task(target=angle)), jnp.ones(2))

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import counted_jit
 
 import minatt_jax.envs as envs
 from minatt_jax import acting
@@ -124,13 +125,7 @@ def test_friction_changes_sliding(make_env):
 
 def test_switching_tasks_does_not_recompile(make_env):
     env = make_env("hopper")
-    traces = []
-
-    def counted_step(state, action):
-        traces.append(1)
-        return env.step(state, action)
-
-    step = jax.jit(counted_step)
+    step, traces = counted_jit(env.step)
     action = jnp.full((3,), 0.3)
     reset = jax.jit(env.reset)
     returns = []
