@@ -1,4 +1,5 @@
-"""DreamerV3 updates/s and env steps/s on cheetah_run, with and without minimum attention.
+"""DreamerV3 (cheetah_run) or MAMBA (point_robot) updates/s and env steps/s, with and without
+minimum attention.
 
 Two measurements per model size, each compiled once and timed after a warm-up call:
 
@@ -11,11 +12,14 @@ Two measurements per model size, each compiled once and timed after a warm-up ca
 
 Variants MA off (alpha 0: no MA terms in the program) and on (alpha 0.05) are timed interleaved
 for ``--rounds`` rounds; the median is reported, with the MA cost measured in the same run. Sizes:
-``cpu`` and ``paper`` are the presets' DreamerV3 settings (``minatt_jax.config.PRESETS``).
+``cpu`` and ``paper`` are the presets' settings (``minatt_jax.config.preset_config``: DreamerV3's
+in ``PRESETS``, MAMBA's in ``agents.mamba``). MAMBA replays whole meta-episodes
+(``--algo mamba``: 3 x 50 steps at cpu size, with its world-model horizon's mask).
 
-    python benchmarks/dreamer_update.py [--sizes cpu paper] [--updates 20] [--rounds 3]
+    python benchmarks/dreamer_update.py [--algo dreamer|mamba] [--sizes cpu paper]
+        [--updates 20] [--rounds 3]
 
-Writes ``benchmarks/results/dreamer_update_<device>.json`` and prints a table.
+Writes ``benchmarks/results/<algo>_update_<device>.json`` and prints a table.
 """
 
 from __future__ import annotations
@@ -29,34 +33,41 @@ import time
 
 import jax
 
-from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.config import preset_config, replace_fields, resolve
 from minatt_jax.training import hyper_of, make_train
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
-def build(size: str, alpha: float, updates: int, chunk_steps: int):
-    """(timed update scan, its state and batches, timed chunk, its state, train ratio)."""
-    preset = PRESETS[size]
-    config = resolve(with_overrides(
-        preset, env="cheetah_run", algo="dreamer", ma_alpha=alpha, warmup_steps=0,
-        eval_every=chunk_steps * preset.num_envs, total_steps=chunk_steps * preset.num_envs,
-        buffer_size=max(4096, 2 * preset.dreamer.batch_length * preset.num_envs),
-    ))  # fmt: skip
+ENVS = {"dreamer": "cheetah_run", "mamba": "point_robot"}
+
+
+def build(algo: str, size: str, alpha: float, updates: int, chunk_steps: int):
+    """(config, timed update scan, its agent state, trainer, initial state)."""
+    preset = preset_config(size, fields={"algo": algo, "env": ENVS[algo]})
+    # one chunk holds two whole sequences (MAMBA: meta-episodes)
+    chunk_steps = max(chunk_steps, 2 * preset.episode_limit if algo == "mamba" else 0)
+    config = resolve(replace_fields(preset, {
+        "ma.alpha": alpha, "warmup_steps": 0, "eval_every": chunk_steps * preset.num_envs,
+        "total_steps": chunk_steps * preset.num_envs,
+        "buffer_size": max(4096, 2 * chunk_steps * preset.num_envs),
+    }))  # fmt: skip
     trainer = make_train(config)
-    agent = trainer.agent.parts["agent"]
+    agent, source = trainer.agent.parts["agent"], trainer.agent.parts["source"]
     state = trainer.init(jax.random.PRNGKey(0), hyper_of(config))
     d = config.dreamer
 
     # A replay filled with one chunk of random-policy steps (enough for whole sequences).
     filled, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(1), hyper_of(config)))
+    mask = source.valid(filled.env_steps)  # MAMBA: the horizon at the filled replay's steps
+    valid = None if mask is None else jax.numpy.broadcast_to(mask, (d.batch_size, source.length))
 
     @jax.jit
     def run_updates(agent_state, key):
         def one(s, k):
             k_sample, k_update = jax.random.split(k)
-            batch = filled.replay.sample(k_sample, d.batch_size, d.batch_length)
-            return agent.update(s, batch, k_update)[0], None
+            batch = source.sample(filled.replay, k_sample)
+            return agent.update(s, batch, k_update, valid)[0], None
 
         return jax.lax.scan(one, agent_state, jax.random.split(key, updates))[0]
 
@@ -71,6 +82,7 @@ def timed(fn, *args) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--algo", default="dreamer", choices=sorted(ENVS))
     parser.add_argument("--sizes", nargs="+", default=["cpu", "paper"])
     parser.add_argument("--updates", type=int, default=20)
     parser.add_argument("--chunk-steps", type=int, default=64,
@@ -83,7 +95,7 @@ def main() -> None:
         built = {}
         for label, alpha in (("MA off", 0.0), ("MA on (alpha 0.05)", 0.05)):
             config, run_updates, agent_state, trainer, state = build(
-                size, alpha, args.updates, args.chunk_steps
+                args.algo, size, alpha, args.updates, args.chunk_steps
             )
             chunk = trainer.train_chunk.lower(state).compile()
             timed(run_updates, agent_state, jax.random.PRNGKey(0))  # compile and warm up
@@ -106,7 +118,8 @@ def main() -> None:
                 "size": size, "variant": label,
                 "model": f"deter {d.deter}, hidden {d.hidden}, {d.stoch}x{d.classes}, "
                          f"units {d.units}x{d.layers}",
-                "batch": f"{d.batch_size}x{d.batch_length}", "num_envs": config.num_envs,
+                "batch": f"{d.batch_size}x{trainer.agent.parts['source'].length}",
+                "env": config.env, "num_envs": config.num_envs,
                 "train_ratio": d.train_ratio, "updates_per_s": 1.0 / update_s,
                 "update_cost_vs_ma_off": update_s / base,
                 "env_steps_per_s": trainer.steps_per_chunk / chunk_s,
@@ -123,7 +136,7 @@ def main() -> None:
         "rows": rows,
     }
     os.makedirs(RESULTS, exist_ok=True)
-    path = os.path.join(RESULTS, f"dreamer_update_{device.platform}.json")
+    path = os.path.join(RESULTS, f"{args.algo}_update_{device.platform}.json")
     with open(path, "w") as f:
         json.dump(result, f, indent=2)
     print(f"{'size':6s} {'variant':20s} {'updates/s':>10s} {'x MA off':>9s} {'env steps/s':>12s}")

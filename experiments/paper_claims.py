@@ -703,9 +703,10 @@ def world_model_rows() -> list[dict[str, Any]]:
     for (table, step, alpha), number in paper_numbers.WORLD_MODELS.items():
         row = {"table": table, "stage": step, "alpha": alpha, "paper": number}
         if table.startswith("mamba"):
-            row.update(
-                status="not tested", ours="-", reason="no MAMBA results under experiments/results/"
-            )
+            row.update(status="not tested", ours="-",
+                       reason="MAMBA is built (--algo mamba; CPU evidence on point_robot in "
+                       "mamba_point_robot.md); Humanoid-dir at this stage is a GPU job "
+                       "(experiments/README.md)")  # fmt: skip
         else:
             mine = [r for r in runs if r["alpha"] == alpha and r["curve"]]
             at = [r for r in mine if any(c["step"] >= step for c in r["curve"])]

@@ -23,7 +23,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from minatt_jax import checkpoint, run_files
-from minatt_jax.config import PRESETS, TrainConfig, apply_overrides, resolve, with_overrides
+from minatt_jax.config import TrainConfig, dotted_fields, preset_config, resolve
 
 
 def _in_notebook() -> bool:
@@ -111,10 +111,7 @@ class Run:
 def make_config(preset: str = "cpu", overrides: Sequence[str] = (), **fields: Any) -> TrainConfig:
     """A resolved configuration: a preset, dotted ``overrides`` ("ma.alpha=1") and keyword
     fields (``ma_alpha=1.0``, ``env="walker2d"``, ``total_steps=10_000``)."""
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose from {', '.join(PRESETS)}")
-    config = apply_overrides(PRESETS[preset], list(overrides))
-    return resolve(with_overrides(config, **fields))
+    return resolve(preset_config(preset, list(overrides), dotted_fields(**fields)))
 
 
 def train(

@@ -398,7 +398,7 @@ def _train_config(args: argparse.Namespace):
     overrides, then the alias flags, resolved (``config.resolve``)."""
     import minatt_jax.envs as envs
     from minatt_jax import runner
-    from minatt_jax.config import PRESETS, apply_overrides, replace_fields, resolve
+    from minatt_jax.config import apply_overrides, preset_config, replace_fields, resolve
 
     aliases = {key: getattr(args, dest) for dest, key in _TRAIN_FLAGS.items()
                if getattr(args, dest) is not None}  # fmt: skip
@@ -411,10 +411,11 @@ def _train_config(args: argparse.Namespace):
             base = runner.load_config(args.out)
         except runner.RunError as e:
             raise UserError(str(e)) from None
-    else:
-        base = PRESETS[args.preset or "cpu"]
     try:
-        config = replace_fields(apply_overrides(base, args.set), aliases)
+        if args.resume:
+            config = replace_fields(apply_overrides(base, args.set), aliases)
+        else:
+            config = preset_config(args.preset or "cpu", args.set, aliases)
         if config.env not in envs.ENV_NAMES:
             envs.make(config.env)  # raises UnknownNameError with the list of names
         if config.task_set is not None:

@@ -383,16 +383,39 @@ def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...])
     return replace_fields(config, values)
 
 
-def with_overrides(config: TrainConfig, **fields: Any) -> TrainConfig:
-    """Keyword form of ``replace_fields`` for code: ``ma_alpha=1.0`` sets ``ma.alpha``; a
-    ``None`` value leaves the field unchanged."""
+def dotted_fields(**fields: Any) -> dict[str, Any]:
+    """Keyword fields as dotted names (``ma_alpha`` -> ``ma.alpha``), ``None`` values dropped."""
     values = {}
     for key, value in fields.items():
         if value is None:
             continue
         group, _, name = key.partition("_")
         values[f"{group}.{name}" if group in GROUPS and name else key] = value
-    return replace_fields(config, values)
+    return values
+
+
+def with_overrides(config: TrainConfig, **fields: Any) -> TrainConfig:
+    """Keyword form of ``replace_fields`` for code: ``ma_alpha=1.0`` sets ``ma.alpha``; a
+    ``None`` value leaves the field unchanged."""
+    return replace_fields(config, dotted_fields(**fields))
+
+
+def preset_config(
+    preset: str, overrides: list[str] | tuple[str, ...] = (), fields: dict[str, Any] | None = None
+) -> TrainConfig:
+    """A preset for the algorithm and environment the overrides and dotted ``fields`` name:
+    ``PRESETS[preset]``, then what that agent sets in the preset for that environment
+    (``AgentSpec.preset_settings``), then ``overrides`` ("group.field=value"), then ``fields``.
+    Unresolved; OverrideError / ValueError as ``apply_overrides``."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose from {', '.join(PRESETS)}")
+    fields = dict(fields or {})
+    base = PRESETS[preset]
+    chosen = replace_fields(apply_overrides(base, overrides), fields)
+    settings = registry.get(chosen.algo).preset_settings(preset, chosen.env)
+    if settings:
+        base = replace_fields(base, settings)
+    return replace_fields(apply_overrides(base, overrides), fields)
 
 
 def resolve(config: TrainConfig) -> TrainConfig:

@@ -195,6 +195,11 @@ def meta_test(
             # far the inner steps moved the policy (a collapse shows as a jump here)
             "policy_distance_curve": moved,
         }
+        inner = sorted(k for k in curve[-1] if k.startswith("return_episode_")
+                       and not k.endswith("_std"))  # fmt: skip
+        if inner:  # meta-episodes: each inner episode's return after the last step (in context)
+            row["return_by_episode"] = [curve[-1][f"return_episode_{i + 1}"]
+                                        for i in range(len(inner))]  # fmt: skip
         rows.append(row)
         first, last = curve[0], curve[-1]
         log(f"{label:40s} return {first['return']:9.2f} -> {last['return']:9.2f} | feedback "

@@ -21,7 +21,8 @@ respect to the observation (``DreamerAgent.observation_control``).
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -81,11 +82,34 @@ class DreamerTrainState:
         return {"world_model": params["world_model"], "actor": params["actor"]}, {}
 
 
-def update_schedule(config: Any) -> tuple[int, int]:
-    """(updates per iteration, iterations per update): the train ratio rounded to whole
-    updates per iteration, or to one update every k iterations when it asks for less."""
+class SequenceSource(NamedTuple):
+    """What the updates replay: sequences of ``length`` steps drawn by ``sample(replay, key)``,
+    and ``valid(env_steps)``, the (length,) mask of the steps whose world-model losses count
+    (None: all). DreamerV3's (``windows``): uniform windows of ``dreamer.batch_length``."""
+
+    length: int
+    sample: Callable[[SequenceReplay, jax.Array], Batch]
+    valid: Callable[[jax.Array], jax.Array | None]
+
+
+def windows(config: Any) -> SequenceSource:
+    """DreamerV3's replay: ``batch_size`` windows of ``batch_length`` steps, uniform over
+    environments and start positions, every step's losses counted."""
     d = config.dreamer
-    per_iteration = d.train_ratio * config.num_envs / (d.batch_size * d.batch_length)
+    return SequenceSource(
+        length=d.batch_length,
+        sample=lambda replay, key: replay.sample(key, d.batch_size, d.batch_length),
+        valid=lambda env_steps: None,
+    )
+
+
+def update_schedule(config: Any, length: int | None = None) -> tuple[int, int]:
+    """(updates per iteration, iterations per update): the train ratio rounded to whole
+    updates per iteration, or to one update every k iterations when it asks for less; replayed
+    sequences are ``length`` steps long (default ``dreamer.batch_length``)."""
+    d = config.dreamer
+    length = d.batch_length if length is None else length
+    per_iteration = d.train_ratio * config.num_envs / (d.batch_size * length)
     if per_iteration >= 1:
         return int(round(per_iteration)), 1
     return 1, int(round(1.0 / per_iteration))
@@ -113,17 +137,19 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
     )
 
 
-def make(config: Any, env: Any, task_set: Any) -> Agent:
-    """The dreamer agent of a resolved configuration (see the module docstring)."""
+def make(config: Any, env: Any, task_set: Any, source: SequenceSource | None = None) -> Agent:
+    """The dreamer agent of a resolved configuration (see the module docstring); ``source``
+    (default ``windows(config)``) is what its updates replay, for agents built on it."""
     d = config.dreamer
+    source = windows(config) if source is None else source
     obs_size, act_size, n = env.observation_size, env.action_size, config.num_envs
     agent = learner(config, env)
-    capacity = max(config.buffer_size // n, d.batch_length)
-    updates_per_iteration, iterations_per_update = update_schedule(config)
+    capacity = max(config.buffer_size // n, source.length)
+    updates_per_iteration, iterations_per_update = update_schedule(config, source.length)
     iterations = config.eval_every // n
-    bt = d.batch_size * d.batch_length
+    bt = d.batch_size * source.length
     # Updates need a full sequence in the rings; the warm-up (random actions) usually covers it.
-    ready_at = max(config.warmup_steps, d.batch_length * n)
+    ready_at = max(config.warmup_steps, source.length * n)
 
     def reset_envs(key: jax.Array) -> EnvState:
         return acting.reset_with_tasks(env, task_set, n, key)
@@ -181,14 +207,15 @@ def make(config: Any, env: Any, task_set: Any) -> Agent:
         return ts.replace(replay=ts.replay.add(step))
 
     def updates(
-        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array, steps: jax.Array
     ) -> tuple[AgentState, dict]:
         """The iteration's updates; only the agent state comes back (the replay is read)."""
+        mask = source.valid(steps)
+        valid = None if mask is None else jnp.broadcast_to(mask, (d.batch_size, source.length))
 
         def one(state, k):
             k_sample, k_update = jax.random.split(k)
-            batch = replay.sample(k_sample, d.batch_size, d.batch_length)
-            return agent.update(state, batch, k_update)
+            return agent.update(state, source.sample(replay, k_sample), k_update, valid)
 
         agent_state, metrics = jax.lax.scan(
             one, agent_state, jax.random.split(key, updates_per_iteration)
@@ -196,16 +223,16 @@ def make(config: Any, env: Any, task_set: Any) -> Agent:
         return agent_state, jax.tree.map(jnp.sum, metrics)
 
     def no_updates(
-        agent_state: AgentState, replay: SequenceReplay, key: jax.Array
+        agent_state: AgentState, replay: SequenceReplay, key: jax.Array, steps: jax.Array
     ) -> tuple[AgentState, dict]:
-        shapes = jax.eval_shape(updates, agent_state, replay, key)[1]
+        shapes = jax.eval_shape(updates, agent_state, replay, key, steps)[1]
         return agent_state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
     def update(ts: DreamerTrainState, keys: dict, steps_after: jax.Array):
         steps = steps_after - n
         due = (steps + n >= ready_at) & ((steps // n) % iterations_per_update == 0)
         agent_state, update_metrics = jax.lax.cond(
-            due, updates, no_updates, ts.agent, ts.replay, keys["update"]
+            due, updates, no_updates, ts.agent, ts.replay, keys["update"], steps_after
         )
         count = jnp.where(due, updates_per_iteration, 0)
         return ts.replace(agent=agent_state), {**update_metrics, "updates": count}
@@ -224,7 +251,7 @@ def make(config: Any, env: Any, task_set: Any) -> Agent:
 
     return Agent(keys=("collect", "update"), init=init, collect=collect, store=store,
                  update=update, summarize=summarize, policy=policy_family(config, env),
-                 parts={"agent": agent})  # fmt: skip
+                 parts={"agent": agent, "source": source})  # fmt: skip
 
 
 def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapter:

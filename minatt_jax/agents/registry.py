@@ -19,6 +19,7 @@ BUILTIN = {
     "mbpo": "minatt_jax.agents.mbpo",
     "mbmpo": "minatt_jax.agents.mbmpo",
     "dreamer": "minatt_jax.agents.dreamer",
+    "mamba": "minatt_jax.agents.mamba",
 }
 
 
@@ -45,6 +46,9 @@ class AgentSpec:
       adapter: ``(config, env, family, settings) -> agents.base.Adapter``: what a meta-test does
         with new experience.
       recurrent: the policy carries memory (export and the C-engine evaluation refuse it).
+      preset_settings: ``(preset, env) -> {dotted field: value}``: what the agent sets in a
+        preset for an environment (MAMBA's meta-episodes and official settings), applied under
+        the user's overrides (``config.preset_config``).
     """
 
     name: str
@@ -54,6 +58,7 @@ class AgentSpec:
     defaults: Callable[[Any], dict[str, Any]] = lambda config: {}
     adapter: Callable[..., Any] | None = None
     recurrent: bool = False
+    preset_settings: Callable[[str, str], dict[str, Any]] = lambda preset, env: {}
 
 
 _SPECS: dict[str, AgentSpec] = {}

@@ -83,7 +83,7 @@ class DreamerAgent(NamedTuple):
     actor: Actor
     critic: Critic
     init: Callable[[jax.Array, dict[str, jax.Array]], AgentState]
-    update: Callable[[AgentState, Batch, jax.Array], tuple[AgentState, dict]]
+    update: Callable[..., tuple[AgentState, dict]]  # (state, batch, key, valid=None)
     initial_latent: Callable[[tuple[int, ...]], Latent]
     observe_step: Callable[..., tuple[Latent, jax.Array]]
     observe: Callable[..., Latent]
@@ -121,6 +121,23 @@ def make_optimizer(c: DreamerConfig) -> optax.GradientTransformation:
         optax.ema(c.beta1, debias=True),
         optax.scale_by_learning_rate(schedule),
     )
+
+
+def masked_mean(x: jax.Array, weight: jax.Array | None) -> jax.Array:
+    """The mean of ``x`` (B, T) over the steps where ``weight`` is 1 (None: every step)."""
+    if weight is None:
+        return jnp.mean(x)
+    return jnp.sum(x * weight) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def draw_states(
+    key: jax.Array, valid: jax.Array | None, b: int, t: int, count: int
+) -> Callable[[jax.Array], jax.Array]:
+    """A function taking ``count`` states per sequence from arrays (B, T, ...): time indices
+    drawn uniformly, with replacement, among the ``valid`` steps (every step if None)."""
+    logits = jnp.zeros((b, t)) if valid is None else jnp.where(valid > 0, 0.0, -jnp.inf)
+    index = jax.random.categorical(key, logits[:, None, :], shape=(b, count))
+    return lambda x: x[jnp.arange(b)[:, None], index]
 
 
 def make_agent(
@@ -217,8 +234,14 @@ def make_agent(
             return control(actor_params, feature(latent.deter, latent.stoch))
         return jnp.clip(sample_action(actor_params, latent, key), -1.0, 1.0)
 
-    def world_model_loss(wm_params: dict, batch: Batch, key: jax.Array) -> tuple[jax.Array, tuple]:
-        """Mean world-model loss over the batch; aux: (posterior latents (B, T), metrics)."""
+    def world_model_loss(
+        wm_params: dict, batch: Batch, key: jax.Array, valid: jax.Array | None = None
+    ) -> tuple[jax.Array, tuple]:
+        """Mean world-model loss over the batch; aux: (posterior latents (B, T), metrics).
+
+        ``valid`` (B, T), 1 where a step's losses count (MAMBA's growing horizon; None: every
+        step); with ``head_states`` the prediction heads see that many valid states per
+        sequence, drawn uniformly, and the KL terms every valid state."""
         b, t = batch.reward.shape
         tokens = wm.apply(wm_params, batch.obs, method=WorldModel.encode)
         keys = jax.random.split(key, t)
@@ -234,17 +257,30 @@ def make_agent(
         latents, post = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), (latents, post))
         prior = probs(wm.apply(wm_params, latents.deter, method=WorldModel.prior))
         feat = feature(latents.deter, latents.stoch)
+        targets = (batch.obs, batch.reward, batch.cont)
+        head_weight = valid
+        if c.head_states:
+            rows = draw_states(jax.random.fold_in(key, t), valid, b, t, c.head_states)
+            feat, targets = jax.tree.map(rows, (feat, targets))
+            head_weight = None  # every drawn state is valid
+        obs, reward, cont = targets
         decoded, reward_logits, cont_logit = wm.apply(wm_params, feat, method=WorldModel.heads)
-        rec = jnp.sum(jnp.square(decoded - dist.symlog(batch.obs)), -1)
-        rew = dist.twohot_loss(reward_logits, batch.reward, bins)
-        con = optax.sigmoid_binary_cross_entropy(cont_logit, batch.cont)
+        rec = jnp.sum(jnp.square(decoded - dist.symlog(obs)), -1)
+        rew = dist.twohot_loss(reward_logits, reward, bins)
+        con = optax.sigmoid_binary_cross_entropy(cont_logit, cont)
         dyn, rep = dist.kl_balance(post, prior, c.free_nats)
-        loss = jnp.mean(rec + rew + con + c.loss_dyn * dyn + c.loss_rep * rep)
+        if valid is None and not c.head_states:
+            loss = jnp.mean(rec + rew + con + c.loss_dyn * dyn + c.loss_rep * rep)
+        else:
+            loss = (masked_mean(rec + rew + con, head_weight)
+                    + masked_mean(c.loss_dyn * dyn + c.loss_rep * rep, valid))  # fmt: skip
         metrics = {
-            "wm_loss": loss, "rec_loss": jnp.mean(rec), "reward_loss": jnp.mean(rew),
-            "cont_loss": jnp.mean(con), "dyn_loss": jnp.mean(dyn), "rep_loss": jnp.mean(rep),
-            "prior_entropy": jnp.mean(dist.categorical_entropy(prior)),
-            "post_entropy": jnp.mean(dist.categorical_entropy(post)),
+            "wm_loss": loss, "rec_loss": masked_mean(rec, head_weight),
+            "reward_loss": masked_mean(rew, head_weight),
+            "cont_loss": masked_mean(con, head_weight), "dyn_loss": masked_mean(dyn, valid),
+            "rep_loss": masked_mean(rep, valid),
+            "prior_entropy": masked_mean(dist.categorical_entropy(prior), valid),
+            "post_entropy": masked_mean(dist.categorical_entropy(post), valid),
         }  # fmt: skip
         return loss, (latents, metrics)
 
@@ -284,16 +320,26 @@ def make_agent(
         _, rets = jax.lax.scan(back, value[-1], (reward[1:], disc, value[1:]), reverse=True)
         return rets
 
-    def update(state: AgentState, batch: Batch, key: jax.Array) -> tuple[AgentState, dict]:
+    def update(
+        state: AgentState, batch: Batch, key: jax.Array, valid: jax.Array | None = None
+    ) -> tuple[AgentState, dict]:
+        """One update of every module on ``batch`` (B, T); ``valid`` as ``world_model_loss``'s;
+        imagination starts from every posterior state, or from ``imag_starts`` valid ones
+        drawn per sequence."""
         k_wm, k_img, k_ma = jax.random.split(key, 3)
         params = state.params
         (_, (latents, wm_metrics)), wm_grads = jax.value_and_grad(world_model_loss, has_aux=True)(
-            params["world_model"], batch, k_wm
+            params["world_model"], batch, k_wm, valid
         )
-        n = batch.reward.size
+        start_cont = batch.cont
+        if c.imag_starts:
+            b, t = batch.reward.shape
+            rows = draw_states(jax.random.fold_in(k_img, 1), valid, b, t, c.imag_starts)
+            latents, start_cont = jax.tree.map(rows, (latents, start_cont))
+        n = start_cont.size
         start = jax.tree.map(lambda x: sg(x.reshape(n, *x.shape[2:])), latents)
         traj = imagine(sg(params["world_model"]), sg(params["actor"]), start,
-                       batch.cont.reshape(n), k_img)  # fmt: skip
+                       start_cont.reshape(n), k_img)  # fmt: skip
         traj = jax.tree.map(sg, traj)
         critic_mean = lambda p, f: dist.twohot_mean(critic.apply(p, f), bins)  # noqa: E731
         value = critic_mean(params["critic"], traj["feat"])

@@ -50,6 +50,27 @@ class SequenceReplay:
         start = jax.random.randint(k_start, (batch_size,), 0, self.size - length + 1)
         oldest = jnp.where(self.size < capacity, 0, self.position)
         index = (oldest + start[:, None] + jnp.arange(length)) % capacity
+        return self._windows(env, index)
+
+    def sample_starts(self, key: jax.Array, batch_size: int, length: int) -> Batch:
+        """``batch_size`` sequences of ``length`` steps that each begin where an episode begins
+        (``is_first``; MAMBA's whole meta-episodes), uniform over the environments' stored
+        beginnings with ``length`` steps after them. Where none is stored yet (the warm-up
+        covers one) the oldest slot stands in."""
+        num_envs, capacity = self.obs.shape[:2]
+        oldest = jnp.where(self.size < capacity, 0, self.position)
+        order = jnp.arange(capacity)
+        slots = (oldest + order) % capacity
+        fits = (order <= self.size - length) & (self.is_first[:, slots] > 0)  # (envs, capacity)
+        fits = fits.at[0, 0].set(fits[0, 0] | ~jnp.any(fits))
+        cumulative = jnp.cumsum(fits.reshape(-1).astype(jnp.int32))
+        pick = jax.random.randint(key, (batch_size,), 0, cumulative[-1])
+        flat = jnp.searchsorted(cumulative, pick, side="right")
+        env, start = flat // capacity, flat % capacity
+        index = (oldest + start[:, None] + jnp.arange(length)) % capacity
+        return self._windows(env, index)
+
+    def _windows(self, env: jax.Array, index: jax.Array) -> Batch:
         take = lambda buf: buf[env[:, None], index]  # noqa: E731
         return Batch(take(self.obs), take(self.prev_action), take(self.reward),
                      take(self.is_first), take(self.cont))  # fmt: skip

@@ -1,0 +1,185 @@
+"""MAMBA against DreamerV3 and a random policy on point_robot: does it adapt in context?
+
+    python experiments/mamba_point_robot.py [--seeds 0 1 2] [--alphas 0 0.05]
+        [--steps 150000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
+
+Trains (or resumes: run it again after a stop) one run per (agent, alpha, seed) at the cpu
+preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3 episodes of 50 steps
+on the 16 training goals of the upper half circle):
+
+* **mamba**: memory over the whole meta-episode;
+* **dreamer**: DreamerV3 with the same model and train ratio on plain 50-step episodes, its
+  memory reset every episode (each episode is a first episode: its return is the same for every
+  k by construction);
+* **random**: a uniform random policy, in meta-episodes.
+
+Then evaluates each run's final policy (deterministic) on every training goal and on the 6
+out-of-distribution goals of the lower half circle, and writes
+``experiments/results/mamba_point_robot.{json,md}``: the return of episode 1 and of episode k of
+a meta-episode, their paired difference per seed (in-context adaptation), learning curves,
+feedback norm and energy, each as the mean over seeds with its 95% bootstrap interval.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import stats
+
+import minatt_jax.envs as envs
+from minatt_jax import acting, runner
+from minatt_jax.config import preset_config, replace_fields, resolve
+from minatt_jax.envs.meta_episode import returns_by_episode
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+NAME = "mamba_point_robot"
+TASK_SETS = {"train": 16, "ood": 12}  # evaluation episodes: every goal once (ood: twice)
+
+
+def run_config(agent: str, alpha: float, seed: int, steps: int, overrides: list[str]):
+    """The run's configuration: MAMBA's cpu setting; DreamerV3 on its plain episodes."""
+    config = preset_config("cpu", overrides, {"env": "point_robot", "algo": "mamba",
+                                              "ma.alpha": alpha, "seed": seed,
+                                              "total_steps": steps})  # fmt: skip
+    if agent == "dreamer":
+        config = replace_fields(config, {
+            "algo": "dreamer", "meta_episodes": 1,
+            "dreamer.batch_length": config.max_episode_steps, "dreamer.head_states": 0,
+            "dreamer.imag_starts": 0, "dreamer.wm_horizon_start": 0,
+        })  # fmt: skip
+    return resolve(config)
+
+
+def episode_returns(metrics: dict, episodes: int) -> list[float]:
+    """The mean return of each episode of a meta-episode (a plain run: its return, k times)."""
+    if "return_episode_1" in metrics:
+        return [metrics[f"return_episode_{i + 1}"] for i in range(episodes)]
+    return [metrics["return"]] * episodes
+
+
+def random_policy_returns(config, task_set: str, episodes: int) -> list[float]:
+    """Each inner episode's mean return of a uniform random policy in meta-episodes."""
+    env = config.make_env()
+    tasks = envs.stack_tasks(envs.resolve_tasks(env, task_set, ())[0])
+    count = envs.num_tasks(tasks)
+    policy = acting.random_policy(env.action_size)
+
+    def one(key, i):
+        task = jax.tree.map(lambda x: x[i % count], tasks)
+        k_reset, k_act = jax.random.split(key)
+        traj = acting.unroll(env, policy, env.reset(k_reset, task), config.episode_limit,
+                             key=k_act)  # fmt: skip
+        return returns_by_episode(traj.reward, traj.env_metrics["meta_episode_index"],
+                                  traj.alive, config.meta_episodes)  # fmt: skip
+
+    keys = jax.random.split(jax.random.PRNGKey(7), episodes)
+    returns = jax.jit(jax.vmap(one))(keys, jnp.arange(episodes))
+    return [float(x) for x in np.asarray(returns).mean(0)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.05])
+    parser.add_argument("--agents", nargs="+", default=["mamba", "dreamer"],
+                        choices=["mamba", "dreamer"])  # fmt: skip
+    parser.add_argument("--steps", type=int, default=150_000)
+    parser.add_argument("--runs", default="runs/mamba_point_robot")
+    parser.add_argument("--set", action="append", default=[], dest="overrides")
+    parser.add_argument("--collect-only", action="store_true",
+                        help="tabulate the runs as they stand, without training")  # fmt: skip
+    args = parser.parse_args()
+    reference = run_config("mamba", 0.0, 0, args.steps, args.overrides)
+    k = reference.meta_episodes
+    arms: dict[str, list[dict]] = {}
+    for agent in args.agents:
+        for alpha in args.alphas:
+            for seed in args.seeds:
+                config = run_config(agent, alpha, seed, args.steps, args.overrides)
+                run_dir = os.path.join(args.runs, f"{agent}_alpha{alpha:g}_seed{seed}")
+                os.makedirs(run_dir, exist_ok=True)
+                resume = os.path.exists(os.path.join(run_dir, "config.json"))
+                if not args.collect_only:
+                    runner.train(config, run_dir, resume=resume)
+                row = {"seed": seed, "run_dir": run_dir,
+                       "curve": [{"step": r["step"], "return": r["return"]}
+                                 for r in runner.read_metrics(run_dir)]}  # fmt: skip
+                for task_set, episodes in TASK_SETS.items():
+                    m = runner.evaluate_run(run_dir, task_set, episodes, seed=100 + seed)
+                    row[task_set] = {"by_episode": episode_returns(m, k),
+                                     "feedback_norm": m["feedback_norm"],
+                                     "energy": m["energy"]}  # fmt: skip
+                arms.setdefault(f"{agent} alpha={alpha:g}", []).append(row)
+    random = {s: random_policy_returns(reference, s, n) for s, n in TASK_SETS.items()}
+    summaries = {}
+    for arm, rows in arms.items():
+        summaries[arm] = {}
+        for task_set in TASK_SETS:
+            per_seed = np.asarray([r[task_set]["by_episode"] for r in rows])  # (seeds, k)
+            summaries[arm][task_set] = {
+                "episode_1": stats.summary(per_seed[:, 0]),
+                f"episode_{k}": stats.summary(per_seed[:, -1]),
+                "adaptation": stats.summary(per_seed[:, -1] - per_seed[:, 0]),
+                "feedback_norm": stats.summary([r[task_set]["feedback_norm"] for r in rows]),
+                "energy": stats.summary([r[task_set]["energy"] for r in rows]),
+            }
+    command = ("python experiments/mamba_point_robot.py --seeds "
+               + " ".join(map(str, args.seeds)) + " --alphas "
+               + " ".join(f"{a:g}" for a in args.alphas) + f" --steps {args.steps}"
+               + "".join(f" --set {o}" for o in args.overrides))  # fmt: skip
+    device = jax.devices()[0]
+    result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
+              "meta_episode": f"{k} x {reference.max_episode_steps} steps",
+              "random_policy": random, "summaries": summaries, "runs": arms}  # fmt: skip
+    os.makedirs(RESULTS, exist_ok=True)
+    runner.write_json_atomic(os.path.join(RESULTS, f"{NAME}.json"), result)
+    text = table(result, k)
+    runner.write_text_atomic(os.path.join(RESULTS, f"{NAME}.md"), text)
+    print(text)
+
+
+def table(result: dict, k: int) -> str:
+    """The results as markdown (mean over seeds [95% bootstrap interval])."""
+
+    def cell(s: dict) -> str:
+        return f"{s['mean']:.2f} [{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
+
+    lines = [
+        "# MAMBA on point_robot: in-context adaptation\n",
+        f"`{result['command']}` on {result['device']}; meta-episodes of "
+        f"{result['meta_episode']}. Deterministic evaluation of each run's final policy on every "
+        "goal of the task set; mean over seeds with the 95% bootstrap interval. Adaptation: "
+        f"episode {k} minus episode 1, paired per seed (DreamerV3's memory is reset every "
+        "episode: its episodes are all first episodes).\n",
+    ]
+    for task_set in TASK_SETS:
+        rand = result["random_policy"][task_set]
+        lines += [
+            f"## {task_set} goals\n",
+            f"Random policy: episode 1 {rand[0]:.2f}, episode {k} {rand[-1]:.2f}.\n",
+            f"| arm | seeds | episode 1 | episode {k} | adaptation | feedback | energy |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for arm, s in result["summaries"].items():
+            t = s[task_set]
+            lines.append(f"| {arm} | {t['episode_1']['n']} | {cell(t['episode_1'])} | "
+                         f"{cell(t[f'episode_{k}'])} | {cell(t['adaptation'])} | "
+                         f"{cell(t['feedback_norm'])} | {cell(t['energy'])} |")  # fmt: skip
+        lines.append("")
+    lines += ["## Learning curves (training goals, mean over seeds)\n"]
+    for arm, rows in result["runs"].items():
+        steps = [p["step"] for p in rows[0]["curve"]]
+        means = np.mean([[p["return"] for p in r["curve"]] for r in rows], 0)
+        lines.append(
+            f"- {arm}: "
+            + ", ".join(f"{s // 1000}K {m:.2f}" for s, m in zip(steps, means, strict=True))
+        )
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()
