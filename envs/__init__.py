@@ -22,7 +22,7 @@ from minatt_jax.envs.hopper import Hopper
 from minatt_jax.envs.humanoid import Humanoid, HumanoidFull
 from minatt_jax.envs.humanoid_dir import HumanoidDir
 from minatt_jax.envs.mjcf import PHYSICS_PRESETS, MissingModelError, PhysicsOptions
-from minatt_jax.envs.point_robot import PointRobot
+from minatt_jax.envs.point_robot import DensePointRobot, PointRobot
 from minatt_jax.envs.task_sets import (
     TARGET_SET_NAMES,
     TASK_FIELDS,
@@ -55,6 +55,7 @@ ENVIRONMENTS: dict[str, type[LocomotionEnv]] = {
     "cheetah_run": CheetahRun,
     "humanoid_dir": HumanoidDir,
     "point_robot": PointRobot,
+    "point_robot_dense": DensePointRobot,
 }
 ENV_NAMES = tuple(ENVIRONMENTS)
 

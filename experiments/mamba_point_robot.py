@@ -1,11 +1,13 @@
 """MAMBA against DreamerV3 and a random policy on point_robot: does it adapt in context?
 
     python experiments/mamba_point_robot.py [--seeds 0 1 2] [--alphas 0 0.05]
-        [--steps 150000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
+        [--steps 90000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
 
-Trains (or resumes: run it again after a stop) one run per (agent, alpha, seed) at the cpu
-preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3 episodes of 50 steps
-on the 16 training goals of the upper half circle):
+Trains (or resumes: run it again after a stop) each agent's runs, every (alpha, seed), as one
+population at the cpu preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3
+episodes of 50 steps) on ``point_robot_dense`` (the goal on the half circle, reward minus the
+distance: the sparse reward of ``point_robot`` gave no learning signal in 150K steps here), on
+the 16 training goals of the upper half circle:
 
 * **mamba**: memory over the whole meta-episode;
 * **dreamer**: DreamerV3 with the same model and train ratio on plain 50-step episodes, its
@@ -31,18 +33,19 @@ import numpy as np
 import stats
 
 import minatt_jax.envs as envs
-from minatt_jax import acting, runner
+from minatt_jax import acting, population, runner
 from minatt_jax.config import preset_config, replace_fields, resolve
 from minatt_jax.envs.meta_episode import returns_by_episode
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 NAME = "mamba_point_robot"
+ENV = "point_robot_dense"  # the dense reward: learnable at a CPU's step budget
 TASK_SETS = {"train": 16, "ood": 12}  # evaluation episodes: every goal once (ood: twice)
 
 
 def run_config(agent: str, alpha: float, seed: int, steps: int, overrides: list[str]):
     """The run's configuration: MAMBA's cpu setting; DreamerV3 on its plain episodes."""
-    config = preset_config("cpu", overrides, {"env": "point_robot", "algo": "mamba",
+    config = preset_config("cpu", overrides, {"env": ENV, "algo": "mamba",
                                               "ma.alpha": alpha, "seed": seed,
                                               "total_steps": steps})  # fmt: skip
     if agent == "dreamer":
@@ -87,7 +90,7 @@ def main() -> None:
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.05])
     parser.add_argument("--agents", nargs="+", default=["mamba", "dreamer"],
                         choices=["mamba", "dreamer"])  # fmt: skip
-    parser.add_argument("--steps", type=int, default=150_000)
+    parser.add_argument("--steps", type=int, default=90_000)
     parser.add_argument("--runs", default="runs/mamba_point_robot")
     parser.add_argument("--set", action="append", default=[], dest="overrides")
     parser.add_argument("--collect-only", action="store_true",
@@ -97,23 +100,25 @@ def main() -> None:
     k = reference.meta_episodes
     arms: dict[str, list[dict]] = {}
     for agent in args.agents:
-        for alpha in args.alphas:
-            for seed in args.seeds:
-                config = run_config(agent, alpha, seed, args.steps, args.overrides)
-                run_dir = os.path.join(args.runs, f"{agent}_alpha{alpha:g}_seed{seed}")
-                os.makedirs(run_dir, exist_ok=True)
-                resume = os.path.exists(os.path.join(run_dir, "config.json"))
-                if not args.collect_only:
-                    runner.train(config, run_dir, resume=resume)
-                row = {"seed": seed, "run_dir": run_dir,
-                       "curve": [{"step": r["step"], "return": r["return"]}
-                                 for r in runner.read_metrics(run_dir)]}  # fmt: skip
-                for task_set, episodes in TASK_SETS.items():
-                    m = runner.evaluate_run(run_dir, task_set, episodes, seed=100 + seed)
-                    row[task_set] = {"by_episode": episode_returns(m, k),
-                                     "feedback_norm": m["feedback_norm"],
-                                     "energy": m["energy"]}  # fmt: skip
-                arms.setdefault(f"{agent} alpha={alpha:g}", []).append(row)
+        # every (alpha, seed) of an agent in one program (population): seeds and alphas are data
+        members = [run_config(agent, alpha, seed, args.steps, args.overrides)
+                   for alpha in args.alphas for seed in args.seeds]  # fmt: skip
+        out = os.path.join(args.runs, agent)
+        if not args.collect_only:
+            resume = os.path.exists(os.path.join(out, "population.json"))
+            population.train_population(members, out, ["ma.alpha"], resume=resume)
+        for config in members:
+            alpha, seed = config.ma.alpha, config.seed
+            run_dir = os.path.join(out, population.member_name(config, ["ma.alpha"]))
+            row = {"seed": seed, "run_dir": run_dir,
+                   "curve": [{"step": r["step"], "return": r["return"]}
+                             for r in runner.read_metrics(run_dir)]}  # fmt: skip
+            for task_set, episodes in TASK_SETS.items():
+                m = runner.evaluate_run(run_dir, task_set, episodes, seed=100 + seed)
+                row[task_set] = {"by_episode": episode_returns(m, k),
+                                 "feedback_norm": m["feedback_norm"],
+                                 "energy": m["energy"]}  # fmt: skip
+            arms.setdefault(f"{agent} alpha={alpha:g}", []).append(row)
     random = {s: random_policy_returns(reference, s, n) for s, n in TASK_SETS.items()}
     summaries = {}
     for arm, rows in arms.items():

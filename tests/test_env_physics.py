@@ -20,10 +20,15 @@ EXPECTED_DIMS = {
     "cheetah_run": (17, 6),
     "humanoid_dir": (376, 17),
     "point_robot": (2, 2),
+    "point_robot_dense": (2, 2),
 }
 # cheetah_run: test_cheetah_run.py; the meta-RL tasks (their rewards read the task):
 # test_humanoid_dir.py, test_point_robot.py
-GYM_ENVS = [n for n in envs.ENV_NAMES if n not in ("cheetah_run", "humanoid_dir", "point_robot")]
+GYM_ENVS = [
+    n
+    for n in envs.ENV_NAMES
+    if n not in ("cheetah_run", "humanoid_dir", "point_robot", "point_robot_dense")
+]
 
 
 @pytest.mark.parametrize("name", envs.ENV_NAMES)

@@ -60,3 +60,18 @@ def test_train_goals_on_the_upper_half_ood_goals_on_the_lower(make_env):
     np.testing.assert_allclose(ood, OOD_GOALS, rtol=1e-6)
     assert np.all((train >= 0) & (train <= np.pi + 1e-6))
     assert np.all((ood > np.pi) & (ood < 2 * np.pi))
+
+
+def test_the_dense_variant_rewards_minus_the_distance_at_every_step(make_env):
+    """point_robot_dense: the reference's PointEnv reward, -|x - goal|, on the same steps."""
+    env = make_env("point_robot_dense")
+    angle = 2.0
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0), env.make_task(target=angle))
+    step = jax.jit(env.step)
+    goal = np.array([np.cos(angle), np.sin(angle)])
+    position = np.zeros(2)
+    for a in ([1.0, 0.5], [-2.0, 0.3], [0.0, -1.0]):
+        state = step(state, jnp.asarray(a, jnp.float32))
+        position, _ = reference_step(position, np.asarray(a), angle)
+        assert float(state.reward) == pytest.approx(-np.linalg.norm(position - goal), abs=1e-5)
+    assert envs.task_set_names(env) == envs.task_set_names(make_env("point_robot"))
