@@ -3,7 +3,8 @@
 A meta-RL agent with memory (MAMBA, a recurrent policy) identifies its task from what it lived
 through: the meta-episode keeps the task fixed for ``episodes`` episodes of at most
 ``episode_steps`` steps each. When an inner episode ends (termination or its step limit) the
-simulator is reset on the same task, but the meta-episode goes on: ``done`` is set only when the
+simulator restarts on the same task (from a start state drawn, like every inner episode's, when
+the meta-episode began), but the meta-episode goes on: ``done`` is set only when the
 last inner episode ends, so a collector that resets an agent's memory where ``done`` is set
 carries that memory across the inner boundaries and resets it between meta-episodes.
 
@@ -69,38 +70,40 @@ class MetaEpisode:
         return jnp.concatenate([inner.obs, action.astype(inner.obs.dtype), extra])
 
     def _wrap(self, inner: State, reward: jax.Array, done: jax.Array, action: jax.Array,
-              first: jax.Array, index: jax.Array, step: jax.Array, rng: jax.Array,
+              first: jax.Array, index: jax.Array, step: jax.Array, starts: State,
               belongs_to: jax.Array) -> State:  # fmt: skip
-        info = {"inner": inner, "meta_index": index, "meta_step": step, "meta_rng": rng,
+        info = {"inner": inner, "meta_index": index, "meta_step": step, "meta_starts": starts,
                 "task": inner.info["task"]}  # fmt: skip
         metrics = {**inner.metrics, "meta_episode_index": belongs_to.astype(jnp.float32)}
         obs = self._observe(inner, reward, action, first, index)
         return State(inner.pipeline_state, obs, reward, done, metrics, info)
 
     def reset(self, rng: jax.Array, task: Any = None) -> State:
-        """The first step of a meta-episode on ``task``."""
-        rng, key = jax.random.split(rng)
-        inner = self.env.reset(key, task)
+        """The first step of a meta-episode on ``task``. The start states of all its inner
+        episodes are drawn here (one reset each, own keys): a restart inside the meta-episode
+        then selects the next one, and never runs a reset under a per-environment condition
+        (under ``vmap`` that would run a reset in every environment at every step)."""
+        keys = jax.random.split(rng, self.episodes)
+        starts = jax.vmap(lambda k: self.env.reset(k, task))(keys)
+        inner = jax.tree.map(lambda x: x[0], starts)
         zero = jnp.zeros((), jnp.float32)
         index = jnp.zeros((), jnp.int32)
         return self._wrap(inner, zero, zero, jnp.zeros(self.action_size), jnp.ones(()), index,
-                          index, rng, index)  # fmt: skip
+                          index, starts, index)  # fmt: skip
 
     def step(self, state: State, action: jax.Array) -> State:
-        """One step; an inner episode that ends restarts the simulator on the same task."""
+        """One step; an inner episode that ends restarts the simulator on the same task (from
+        the start state drawn for the next episode when the meta-episode began)."""
         inner = self.env.step(state.info["inner"], action)
         index, step = state.info["meta_index"], state.info["meta_step"] + 1
         inner_ended = (inner.done > 0) | (step >= self.episode_steps)
         last = index >= self.episodes - 1
-        rng, key = jax.random.split(state.info["meta_rng"])
         restart = inner_ended & ~last
-
-        def next_episode(_: None) -> State:
-            fresh = self.env.reset(key, state.info["task"])
-            # the step's reward and metrics stay the ended episode's; its state is the fresh one
-            return fresh.replace(reward=inner.reward, metrics=inner.metrics)
-
-        inner_next = jax.lax.cond(restart, next_episode, lambda _: inner, None)
+        starts = state.info["meta_starts"]
+        fresh = jax.tree.map(lambda x: x[jnp.minimum(index + 1, self.episodes - 1)], starts)
+        # the step's reward and metrics stay the ended episode's; its state is the fresh one
+        fresh = fresh.replace(reward=inner.reward, metrics=inner.metrics)
+        inner_next = jax.tree.map(lambda f, s: jnp.where(restart, f, s), fresh, inner)
         done = (inner_ended & last).astype(jnp.float32)
         first = restart.astype(jnp.float32)
         new_index = index + restart.astype(jnp.int32)
@@ -108,7 +111,7 @@ class MetaEpisode:
         prev_action = jnp.where(restart, jnp.zeros_like(action), action)
         reward = jnp.where(restart, 0.0, inner.reward)  # a fresh episode's first step saw none
         wrapped = self._wrap(inner_next, reward, done, prev_action, first, new_index, new_step,
-                             rng, index)  # fmt: skip
+                             starts, index)  # fmt: skip
         # the reward of the step itself (what a learner sums) is the inner episode's
         return wrapped.replace(reward=inner.reward)
 

@@ -155,3 +155,27 @@ def test_a_run_in_meta_episodes_trains_evaluates_and_is_refused_by_analyze(tmp_p
     assert record["length"] == 60 and "return_episode_3" in record
     assert main(["analyze", run, "--out", str(tmp_path / "report")]) == 2
     assert "meta-episodes" in capsys.readouterr().err
+
+
+def test_a_step_never_resets_the_simulator(make_env):
+    """Restarts select a start state drawn when the meta-episode began: a step (vmapped, as
+    collectors run it) calls no reset, which under a per-environment condition would run in
+    every environment at every step."""
+
+    class Counting:
+        def __init__(self, env):
+            self.env, self.resets = env, 0
+
+        def __getattr__(self, name):
+            return getattr(self.env, name)
+
+        def reset(self, rng, task=None):
+            self.resets += 1
+            return self.env.reset(rng, task)
+
+    inner = Counting(make_env("point_robot"))
+    wrapped = MetaEpisode(inner, EPISODES, STEPS)
+    states = jax.vmap(wrapped.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert inner.resets == 1  # traced once: one vmapped reset per inner episode's start
+    jax.make_jaxpr(jax.vmap(wrapped.step))(states, jnp.zeros((2, 2)))
+    assert inner.resets == 1
