@@ -49,6 +49,36 @@ def counted_jit(fn):
     return jax.jit(counted), traces
 
 
+def central_jacobian(f, x, eps: float = 1e-3):
+    """The Jacobian of ``f`` at ``x`` by central differences, in float64 (f runs in float32)."""
+    import numpy as np
+
+    x = np.asarray(x, np.float64)
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e.flat[i] = eps
+        up = np.asarray(f(jax.numpy.asarray(x + e, jax.numpy.float32)), np.float64)
+        down = np.asarray(f(jax.numpy.asarray(x - e, jax.numpy.float32)), np.float64)
+        cols.append((up - down) / (2 * eps))
+    return np.stack(cols, -1)
+
+
+def sequence_batch(key, b: int, t: int, obs_size: int = 5, act_size: int = 2):
+    """Random replayed sequences (B, T) for DreamerV3's learner: each starts an episode."""
+    from minatt_jax.dreamer.agent import Batch
+
+    jnp = jax.numpy
+    k1, k2, k3 = jax.random.split(key, 3)
+    return Batch(
+        obs=jax.random.normal(k1, (b, t, obs_size)),
+        prev_action=jax.random.uniform(k2, (b, t, act_size), minval=-1, maxval=1),
+        reward=jax.random.uniform(k3, (b, t)),
+        is_first=jnp.zeros((b, t)).at[:, 0].set(1.0),
+        cont=jnp.ones((b, t)),
+    )
+
+
 def untrained_run(run: str, config, step: int) -> None:
     """A run directory made without training: ``config`` (resolved), a checkpoint and a policy
     snapshot of the initial state at ``step``, and one metrics record there."""

@@ -7,10 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import central_jacobian, sequence_batch
 
 from minatt_jax import min_attention as ma
 from minatt_jax.dreamer import distributions as dist
-from minatt_jax.dreamer.agent import Batch, Latent, make_agent
+from minatt_jax.dreamer.agent import Latent, make_agent
 from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dreamer.networks import feature
 from minatt_jax.min_attention import MAConfig
@@ -116,18 +117,6 @@ def test_lambda_returns_match_a_loop(agent):
     np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-6)
 
 
-def _central_jacobian(f, x, eps=1e-3):
-    x = np.asarray(x, np.float64)
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e.flat[i] = eps
-        up = np.asarray(f(jnp.asarray(x + e, jnp.float32)), np.float64)
-        down = np.asarray(f(jnp.asarray(x - e, jnp.float32)), np.float64)
-        cols.append((up - down) / (2 * eps))
-    return np.stack(cols, -1)
-
-
 def test_ma_jacobians_trained_and_reported_match_finite_differences(agent):
     state = agent.init(jax.random.PRNGKey(0), HYPER)
     # Actor weights away from their small initialization, so the Jacobians are not tiny.
@@ -142,31 +131,19 @@ def test_ma_jacobians_trained_and_reported_match_finite_differences(agent):
     from minatt_jax import min_attention as ma
 
     trained = float(ma.feedback_exact(agent.control, actor, feat[None], "jacrev")[0])
-    fd = _central_jacobian(lambda s: agent.control(actor, s), feat)
+    fd = central_jacobian(lambda s: agent.control(actor, s), feat)
     assert trained == pytest.approx(float(np.sum(fd**2)), rel=2e-2)
     # Reported: with respect to the observation, through the encoder and the posterior.
     obs = jnp.asarray([0.3, -0.2, 1.5, 0.0, -0.7])
     jac = jax.jacfwd(lambda o: agent.observation_control(params, latent, o))(obs)
-    fd_obs = _central_jacobian(lambda o: agent.observation_control(params, latent, o), obs)
+    fd_obs = central_jacobian(lambda o: agent.observation_control(params, latent, o), obs)
     np.testing.assert_allclose(jac, fd_obs, rtol=2e-2, atol=1e-4)
     assert float(jnp.sum(jac**2)) > 1e-6
 
 
-def _batch(key, config, obs_size=5, act_size=2):
-    b, t = config.batch_size, config.batch_length
-    k1, k2, k3 = jax.random.split(key, 3)
-    return Batch(
-        obs=jax.random.normal(k1, (b, t, obs_size)),
-        prev_action=jax.random.uniform(k2, (b, t, act_size), minval=-1, maxval=1),
-        reward=jax.random.uniform(k3, (b, t)),
-        is_first=jnp.zeros((b, t)).at[:, 0].set(1.0),
-        cont=jnp.ones((b, t)),
-    )
-
-
 def test_update_changes_every_module_and_ma_off_is_exactly_no_penalty(agent):
     state = agent.init(jax.random.PRNGKey(0), HYPER)
-    batch = _batch(jax.random.PRNGKey(3), TINY)
+    batch = sequence_batch(jax.random.PRNGKey(3), TINY.batch_size, TINY.batch_length)
     update = jax.jit(agent.update)
     # The learning rate warms up from 0: the first update moves nothing, the second does.
     state, _ = update(state, batch, jax.random.PRNGKey(5))
@@ -198,7 +175,7 @@ def test_ma_mode_is_data_and_each_weighting_equals_the_modes_own_agent(agent):
     """The (feedback, temporal) weights in the state pick the mode inside a program that
     computes both terms: each gives its own agent's update (a population of modes shares it)."""
     state = agent.init(jax.random.PRNGKey(0), HYPER)
-    batch = _batch(jax.random.PRNGKey(3), TINY)
+    batch = sequence_batch(jax.random.PRNGKey(3), TINY.batch_size, TINY.batch_length)
     update = jax.jit(agent.update)
     for k in (5, 6):  # past the warm-up's zero rate, so the actor has moved (temporal term)
         state, _ = update(state, batch, jax.random.PRNGKey(k))

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import central_jacobian, sequence_batch
 
 from minatt_jax import min_attention as ma
 from minatt_jax.agents import mamba
@@ -55,17 +56,6 @@ def test_replayed_sequences_start_where_meta_episodes_start():
     assert counts.min() > 0.7 * counts.mean()  # uniform over the stored starts
 
 
-def _batch(key, b=3, t=12, obs_size=5, act_size=2):
-    k1, k2, k3 = jax.random.split(key, 3)
-    return Batch(
-        obs=jax.random.normal(k1, (b, t, obs_size)),
-        prev_action=jax.random.uniform(k2, (b, t, act_size), minval=-1, maxval=1),
-        reward=jax.random.uniform(k3, (b, t)),
-        is_first=jnp.zeros((b, t)).at[:, 0].set(1.0),
-        cont=jnp.ones((b, t)),
-    )
-
-
 @pytest.fixture(scope="module")
 def agent():
     return make_agent(5, 2, TINY, ma.MAConfig(alpha=0.05))
@@ -76,7 +66,7 @@ def test_steps_past_the_horizon_change_nothing_in_an_update(agent):
     the imagination starts all lie inside it: what the batch holds after it changes no
     parameter; inside it, it does."""
     state = agent.init(jax.random.PRNGKey(0), HYPER)
-    batch = _batch(jax.random.PRNGKey(1))
+    batch = sequence_batch(jax.random.PRNGKey(1), 3, 12)
     valid = jnp.broadcast_to(mamba.horizon_mask(12, 7, 10**9)(jnp.asarray(0)), (3, 12))
     key = jax.random.PRNGKey(2)
 
@@ -104,7 +94,7 @@ def test_masked_world_model_loss_reads_only_the_horizon_and_all_ones_is_dreamers
     config = DreamerConfig(**{**TINY.__dict__, "head_states": 0, "imag_starts": 0})
     agent = make_agent(5, 2, config, ma.MAConfig(alpha=0.0))
     params = agent.init(jax.random.PRNGKey(0), HYPER).params["world_model"]
-    batch = _batch(jax.random.PRNGKey(1))
+    batch = sequence_batch(jax.random.PRNGKey(1), 3, 12)
     key = jax.random.PRNGKey(4)
     whole, _ = agent.world_model_loss(params, batch, key)
     ones, _ = agent.world_model_loss(params, batch, key, jnp.ones((3, 12)))
@@ -114,18 +104,6 @@ def test_masked_world_model_loss_reads_only_the_horizon_and_all_ones_is_dreamers
     padded = batch._replace(obs=batch.obs.at[:, 7:].set(5.0), cont=batch.cont.at[:, 7:].set(0))
     again, _ = agent.world_model_loss(params, padded, key, valid)
     assert float(again) == float(masked) and float(masked) != pytest.approx(float(whole))
-
-
-def _central_jacobian(f, x, eps=1e-3):
-    x = np.asarray(x, np.float64)
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e[i] = eps
-        up = np.asarray(f(jnp.asarray(x + e, jnp.float32)), np.float64)
-        down = np.asarray(f(jnp.asarray(x - e, jnp.float32)), np.float64)
-        cols.append((up - down) / (2 * eps))
-    return np.stack(cols, -1)
 
 
 def test_ma_feedback_norms_match_finite_differences_on_meta_episode_observations(make_env):
@@ -144,12 +122,12 @@ def test_ma_feedback_norms_match_finite_differences_on_meta_episode_observations
                     jax.nn.one_hot(jnp.asarray([0, 2, 1, 1]), TINY.classes))  # fmt: skip
     feat = jnp.concatenate([latent.deter, latent.stoch.reshape(-1)])
     trained = float(ma.feedback_exact(agent.control, actor, feat[None], "jacrev")[0])
-    fd = _central_jacobian(lambda s: agent.control(actor, s), feat)
+    fd = central_jacobian(lambda s: agent.control(actor, s), feat)
     assert trained == pytest.approx(float(np.sum(fd**2)), rel=2e-2)
     obs = jnp.asarray([0.3, -0.2, 0.5, -0.4, 0.8, 1.0, 0.5])  # x, y, a_prev, reward, flag, index
     assert obs.shape == (env.observation_size,)
     control = lambda o: agent.observation_control(params, latent, o)  # noqa: E731
-    np.testing.assert_allclose(jax.jacfwd(control)(obs), _central_jacobian(control, obs),
+    np.testing.assert_allclose(jax.jacfwd(control)(obs), central_jacobian(control, obs),
                                rtol=2e-2, atol=1e-4)  # fmt: skip
 
 

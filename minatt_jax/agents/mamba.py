@@ -61,20 +61,20 @@ DEVIATIONS = (
 OFFICIAL = {
     "point_robot": {  # halfcircle
         "meta_episodes": 3, "max_episode_steps": 100, "total_steps": 2_000_000,
-        "num_envs": 10, "dreamer.train_ratio": 16.0, "dreamer.imag_length": 2,
+        "dreamer.train_ratio": 16.0, "dreamer.imag_length": 2,
         "dreamer.wm_horizon_start": 300, "dreamer.wm_horizon_full_at": 0,
-        "dreamer.layers": 2, "dreamer.units": 128, "dreamer.deter": 512,
-        "dreamer.stoch": 16, "dreamer.classes": 16,
     },
     "humanoid_dir": {  # humanoiddir
         "meta_episodes": 2, "max_episode_steps": 200, "total_steps": 30_000_000,
-        "num_envs": 10, "dreamer.train_ratio": 96.0, "dreamer.imag_length": 10,
+        "dreamer.train_ratio": 96.0, "dreamer.imag_length": 10,
         "dreamer.wm_horizon_start": 50, "dreamer.wm_horizon_full_at": 15_000_000,
-        "dreamer.layers": 2, "dreamer.units": 128, "dreamer.deter": 512,
-        "dreamer.stoch": 16, "dreamer.classes": 16,
     },
 }  # fmt: skip
-SHARED = {"dreamer.batch_size": 16, "dreamer.head_states": 64, "dreamer.imag_starts": 512,
+# Both official settings: 10 environments, batches of 16, 64 head states and 512 imagination
+# starts per sequence, MLPs of 2 x 128, deter 512, 16 x 16 categoricals.
+SHARED = {"num_envs": 10, "dreamer.batch_size": 16, "dreamer.head_states": 64,
+          "dreamer.imag_starts": 512, "dreamer.layers": 2, "dreamer.units": 128,
+          "dreamer.deter": 512, "dreamer.stoch": 16, "dreamer.classes": 16,
           "eval_every": 30_000, "warmup_steps": 7_500, "task_set": "train"}  # fmt: skip
 # A point-robot setting one CPU core trains in about 15 minutes (meta-episodes of 3 x 50 steps,
 # a small model, 60K env steps at 8x the official train ratio: 6,000 updates of 8 x 150 steps).
