@@ -1,7 +1,7 @@
 """MAMBA against DreamerV3 and a random policy on point_robot: does it adapt in context?
 
     python experiments/mamba_point_robot.py [--seeds 0 1 2] [--alphas 0 0.05]
-        [--steps 90000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
+        [--steps 60000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
 
 Trains (or resumes: run it again after a stop) each agent's runs, every (alpha, seed), as one
 population at the cpu preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3
@@ -43,11 +43,12 @@ ENV = "point_robot_dense"  # the dense reward: learnable at a CPU's step budget
 TASK_SETS = {"train": 16, "ood": 12}  # evaluation episodes: every goal once (ood: twice)
 
 
-def run_config(agent: str, alpha: float, seed: int, steps: int, overrides: list[str]):
+def run_config(agent: str, alpha: float, seed: int, steps: int | None, overrides: list[str]):
     """The run's configuration: MAMBA's cpu setting; DreamerV3 on its plain episodes."""
-    config = preset_config("cpu", overrides, {"env": ENV, "algo": "mamba",
-                                              "ma.alpha": alpha, "seed": seed,
-                                              "total_steps": steps})  # fmt: skip
+    fields = {"env": ENV, "algo": "mamba", "ma.alpha": alpha, "seed": seed}
+    if steps is not None:
+        fields["total_steps"] = steps
+    config = preset_config("cpu", overrides, fields)
     if agent == "dreamer":
         config = replace_fields(config, {
             "algo": "dreamer", "meta_episodes": 1,
@@ -90,7 +91,8 @@ def main() -> None:
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.05])
     parser.add_argument("--agents", nargs="+", default=["mamba", "dreamer"],
                         choices=["mamba", "dreamer"])  # fmt: skip
-    parser.add_argument("--steps", type=int, default=90_000)
+    parser.add_argument("--steps", type=int, default=None,
+                        help="env steps per run (default: the cpu preset's, 60K)")  # fmt: skip
     parser.add_argument("--runs", default="runs/mamba_point_robot")
     parser.add_argument("--set", action="append", default=[], dest="overrides")
     parser.add_argument("--collect-only", action="store_true",
@@ -115,6 +117,7 @@ def main() -> None:
                              for r in runner.read_metrics(run_dir)]}  # fmt: skip
             for task_set, episodes in TASK_SETS.items():
                 m = runner.evaluate_run(run_dir, task_set, episodes, seed=100 + seed)
+                row["step"] = m["step"]
                 row[task_set] = {"by_episode": episode_returns(m, k),
                                  "feedback_norm": m["feedback_norm"],
                                  "energy": m["energy"]}  # fmt: skip
@@ -134,7 +137,7 @@ def main() -> None:
             }
     command = ("python experiments/mamba_point_robot.py --seeds "
                + " ".join(map(str, args.seeds)) + " --alphas "
-               + " ".join(f"{a:g}" for a in args.alphas) + f" --steps {args.steps}"
+               + " ".join(f"{a:g}" for a in args.alphas) + f" --steps {reference.total_steps}"
                + "".join(f" --set {o}" for o in args.overrides))  # fmt: skip
     device = jax.devices()[0]
     result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
@@ -154,7 +157,7 @@ def table(result: dict, k: int) -> str:
         return f"{s['mean']:.2f} [{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
 
     lines = [
-        "# MAMBA on point_robot: in-context adaptation\n",
+        f"# MAMBA on {ENV}: in-context adaptation\n",
         f"`{result['command']}` on {result['device']}; meta-episodes of "
         f"{result['meta_episode']}. Deterministic evaluation of each run's final policy on every "
         "goal of the task set; mean over seeds with the 95% bootstrap interval. Adaptation: "
@@ -166,16 +169,20 @@ def table(result: dict, k: int) -> str:
         lines += [
             f"## {task_set} goals\n",
             f"Random policy: episode 1 {rand[0]:.2f}, episode {k} {rand[-1]:.2f}.\n",
-            f"| arm | seeds | episode 1 | episode {k} | adaptation | feedback | energy |",
-            "|---|---|---|---|---|---|---|",
+            f"| arm | env steps | seeds | episode 1 | episode {k} | adaptation | feedback | "
+            "energy |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for arm, s in result["summaries"].items():
             t = s[task_set]
-            lines.append(f"| {arm} | {t['episode_1']['n']} | {cell(t['episode_1'])} | "
+            steps = "/".join(sorted({f"{r['step'] // 1000}K" for r in result["runs"][arm]}))
+            lines.append(f"| {arm} | {steps} | {t['episode_1']['n']} | {cell(t['episode_1'])} | "
                          f"{cell(t[f'episode_{k}'])} | {cell(t['adaptation'])} | "
                          f"{cell(t['feedback_norm'])} | {cell(t['energy'])} |")  # fmt: skip
         lines.append("")
-    lines += ["## Learning curves (training goals, mean over seeds)\n"]
+    lines += ["## Learning curves (training goals, mean over seeds)\n",
+              f"Deterministic evaluation during training: MAMBA's return is a meta-episode's ({k} "
+              "episodes), DreamerV3's one episode's.\n"]  # fmt: skip
     for arm, rows in result["runs"].items():
         steps = [p["step"] for p in rows[0]["curve"]]
         means = np.mean([[p["return"] for p in r["curve"]] for r in rows], 0)
