@@ -137,6 +137,7 @@ MODULE_SECONDS = {
     "test_checkpoint.py": 200,
     "test_cheetah_run.py": 170,
     "test_report.py": 150,
+    "test_mamba.py": 200,
     "test_humanoid_dir.py": 120,
     "test_imagination.py": 110,
     "test_meta_episode.py": 60,

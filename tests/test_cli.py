@@ -66,7 +66,8 @@ def test_console_script_error_has_no_traceback():
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines() == [
         "minatt-jax: error: unknown environment 'ant'; choose from hopper, halfcheetah, "
-        "walker2d, humanoid, humanoid_376, cheetah_run, humanoid_dir, point_robot"
+        "walker2d, humanoid, humanoid_376, cheetah_run, humanoid_dir, point_robot, "
+        "point_robot_dense"
     ]
 
 
