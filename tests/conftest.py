@@ -150,6 +150,18 @@ MODULE_SECONDS = {
 }
 
 
+def straight_and_resumed(argv: list[str], tmp_path, capsys) -> tuple[list, list]:
+    """The metrics of ``train`` run straight to 600 steps and of the same run stopped at 300
+    and resumed to 600 (both must exit 0): what an exact-resume test compares."""
+    from minatt_jax import runner
+
+    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
+    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
+    assert run_cli([*argv, "--steps", "300", "--out", split], capsys)[0] == 0
+    assert run_cli(["train", "--out", split, "--resume", "--steps", "600"], capsys)[0] == 0
+    return runner.read_metrics(straight), runner.read_metrics(split)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order set below
         config.option.loadscopereorder = False

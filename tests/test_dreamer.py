@@ -204,7 +204,7 @@ def test_ma_mode_is_data_and_each_weighting_equals_the_modes_own_agent(agent):
 def test_cli_trains_cheetah_run_and_resumes_exactly(tmp_path, capsys):
     """``train --algo dreamer`` on cheetah_run (smoke): the whole program runs, writes the
     metrics every algorithm writes and resumes exactly."""
-    from conftest import run_cli
+    from conftest import straight_and_resumed
 
     from minatt_jax import runner
 
@@ -212,11 +212,7 @@ def test_cli_trains_cheetah_run_and_resumes_exactly(tmp_path, capsys):
     # for a minute longer, and test_cheetah_run.py checks them.
     argv = ["train", "--env", "cheetah_run", "--algo", "dreamer", "--preset", "smoke",
             "--alpha", "0.05", "--set", "physics=fast"]  # fmt: skip
-    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
-    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
-    assert run_cli([*argv, "--steps", "300", "--out", split], capsys)[0] == 0
-    assert run_cli(["train", "--out", split, "--resume", "--steps", "600"], capsys)[0] == 0
-    a, b = runner.read_metrics(straight), runner.read_metrics(split)
+    a, b = straight_and_resumed(argv, tmp_path, capsys)
     assert [r["step"] for r in a] == [300, 600]
     assert runner.without_timings(a) == runner.without_timings(b)
     last = a[-1]

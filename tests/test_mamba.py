@@ -167,17 +167,14 @@ def test_a_mamba_run_resumes_exactly_evaluates_per_episode_and_meta_tests_in_con
     straight one; ``evaluate`` gives each inner episode's return; ``meta-test`` on the
     out-of-distribution goals takes no gradient step (the curve is flat) and reports the
     in-context curve."""
-    from conftest import run_cli
+    from conftest import run_cli, straight_and_resumed
 
     from minatt_jax import runner
 
     argv = ["train", "--env", "point_robot", "--algo", "mamba", "--preset", "smoke",
             "--alpha", "0.05"]  # fmt: skip
-    straight, split = str(tmp_path / "straight"), str(tmp_path / "split")
-    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
-    assert run_cli([*argv, "--steps", "300", "--out", split], capsys)[0] == 0
-    assert run_cli(["train", "--out", split, "--resume", "--steps", "600"], capsys)[0] == 0
-    a, b = runner.read_metrics(straight), runner.read_metrics(split)
+    a, b = straight_and_resumed(argv, tmp_path, capsys)
+    straight = str(tmp_path / "straight")
     assert [r["step"] for r in a] == [300, 600]
     assert runner.without_timings(a) == runner.without_timings(b)
     assert a[-1]["updates"] > 0 and a[-1]["ma_feedback"] > 0
