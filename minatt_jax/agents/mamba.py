@@ -27,7 +27,6 @@ minutes, ``smoke`` seconds. ``DEVIATIONS`` lists what differs from the official 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import jax
@@ -168,13 +167,6 @@ def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapt
         step=lambda learner, context, key: learner,
         policy_params=policy_params,
     )
-
-
-def paper_cost(config: Any, updates_per_second: float) -> float:
-    """Hours of updates a run of ``config`` takes at ``updates_per_second``."""
-    d = config.dreamer
-    updates = config.total_steps * d.train_ratio / (d.batch_size * config.episode_limit)
-    return math.ceil(updates) / updates_per_second / 3600.0
 
 
 SPEC = registry.register(
