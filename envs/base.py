@@ -248,6 +248,11 @@ class LocomotionEnv(Env, abc.ABC):
         del model
         return data
 
+    def with_start(self, state: State, data: mjx.Data) -> State:
+        """``state`` (a reset's) started from the simulator state ``data`` instead: the
+        failure grid's chosen initial velocities. ``data`` is complete (``complete``)."""
+        return state.replace(pipeline_state=data, obs=self.observation(data))
+
     @abc.abstractmethod
     def observation(self, data: mjx.Data) -> jax.Array:
         """Gym v3 observation from physics data."""

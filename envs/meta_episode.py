@@ -91,6 +91,16 @@ class MetaEpisode:
         return self._wrap(inner, zero, zero, jnp.zeros(self.action_size), jnp.ones(()), index,
                           index, starts, index)  # fmt: skip
 
+    def with_start(self, state: State, data: Any) -> State:
+        """The meta-episode ``state`` (a reset's) with its first inner episode started from the
+        simulator state ``data`` (the failure grid's initial states); the later episodes keep
+        the start states drawn at the reset."""
+        inner = self.env.with_start(state.info["inner"], data)
+        starts = jax.tree.map(lambda s, x: s.at[0].set(x), state.info["meta_starts"], inner)
+        obs = jnp.concatenate([inner.obs, state.obs[inner.obs.shape[-1] :]])
+        info = {**state.info, "inner": inner, "meta_starts": starts}
+        return state.replace(pipeline_state=inner.pipeline_state, obs=obs, info=info)
+
     def step(self, state: State, action: jax.Array) -> State:
         """One step; an inner episode that ends restarts the simulator on the same task (from
         the start state drawn for the next episode when the meta-episode began)."""

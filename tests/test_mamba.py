@@ -1,6 +1,6 @@
 """MAMBA (agents/mamba.py): whole meta-episodes replayed from their starts, the world-model
 horizon's schedule and mask, MA's Jacobian by finite differences, the presets, and a run that
-trains, resumes exactly, evaluates per inner episode and meta-tests in context."""
+trains, resumes exactly, evaluates per inner episode, meta-tests in context and is analyzed."""
 
 from __future__ import annotations
 
@@ -166,7 +166,7 @@ def test_a_mamba_run_resumes_exactly_evaluates_per_episode_and_meta_tests_in_con
     """``train --algo mamba`` on point_robot (smoke): a run split and resumed equals the
     straight one; ``evaluate`` gives each inner episode's return; ``meta-test`` on the
     out-of-distribution goals takes no gradient step (the curve is flat) and reports the
-    in-context curve."""
+    in-context curve; ``analyze`` reports each inner episode."""
     from conftest import run_cli, straight_and_resumed
 
     from minatt_jax import runner
@@ -195,6 +195,15 @@ def test_a_mamba_run_resumes_exactly_evaluates_per_episode_and_meta_tests_in_con
         assert row["return_curve"][0] == row["return_curve"][1]  # in context: no gradient step
         assert row["policy_distance_curve"] == [0.0]
         assert len(row["return_by_episode"]) == 2
+    report = tmp_path / "report"
+    status, out = run_cli(["analyze", straight, "--out", str(report), "--episodes", "2", "--bins",
+                           "4", "--grid", "2", "--grid-rollouts", "1", "--grid-steps", "20"],
+                          capsys)  # fmt: skip
+    assert status == 0, out.err
+    tables = json.loads((report / "tables.json").read_text())
+    assert [r["episode"] for r in tables["in_context"]] == [1, 2]
+    assert tables["in_context"][0]["group"] == "mamba alpha=0.05"
+    assert all(r["feedback"] > 0 for r in tables["in_context"])
 
 
 @pytest.mark.slow

@@ -141,8 +141,28 @@ def test_evaluation_reports_each_inner_episodes_return(make_env):
     assert got["length"] == 36
 
 
+def test_a_chosen_start_begins_the_first_inner_episode_only(make_env):
+    """``with_start`` (the failure grid's initial states): the first inner episode starts from
+    the given simulator state and its observation shows it; the next inner episode starts from
+    its own start drawn at the reset (the origin)."""
+    env = MetaEpisode(make_env("point_robot"), 2, 3)
+    state = env.reset(jax.random.PRNGKey(0))
+    data = state.pipeline_state.replace(qpos=jnp.array([0.3, -0.2]))
+    state = env.with_start(state, data)
+    assert state.obs.shape == (env.observation_size,)
+    np.testing.assert_allclose(state.obs[:2], [0.3, -0.2])
+    assert state.obs[-2] == 1.0  # still the first step of an episode
+    step = jax.jit(env.step)
+    positions = []
+    for _ in range(5):  # zero actions: the point stays where its episode started
+        state = step(state, jnp.zeros(2))
+        positions.append(np.asarray(state.obs[:2]))
+    np.testing.assert_allclose(positions[:2], [[0.3, -0.2]] * 2)
+    np.testing.assert_allclose(positions[2:], 0.0)  # the second episode, from the origin
+
+
 @pytest.mark.slow
-def test_a_run_in_meta_episodes_trains_evaluates_and_is_refused_by_analyze(tmp_path, capsys):
+def test_a_run_in_meta_episodes_trains_evaluates_and_analyzes(tmp_path, capsys):
     from minatt_jax.cli import main
 
     run = str(tmp_path / "meta")
@@ -153,8 +173,17 @@ def test_a_run_in_meta_episodes_trains_evaluates_and_is_refused_by_analyze(tmp_p
     assert main(["evaluate", run, "--variant", "ood", "--episodes", "2", "--json"]) == 0
     record = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert record["length"] == 60 and "return_episode_3" in record
-    assert main(["analyze", run, "--out", str(tmp_path / "report")]) == 2
-    assert "meta-episodes" in capsys.readouterr().err
+    report = tmp_path / "report"
+    analyze = ["analyze", run, "--out", str(report), "--episodes", "2", "--bins", "4", "--grid",
+               "2", "--grid-rollouts", "1", "--grid-steps", "30"]  # fmt: skip
+    assert main(analyze) == 0
+    tables = json.loads((report / "tables.json").read_text())
+    rows = tables["in_context"]
+    assert [r["episode"] for r in rows] == [1, 2, 3]
+    assert all(np.isfinite(r[k]) for r in rows for k in ("return", "feedback", "energy"))
+    assert (report / "adaptation.png").stat().st_size > 0
+    rates = json.loads((report / "failure_grid.json").read_text())["failure_rate"]
+    assert np.asarray(next(iter(rates.values()))).shape == (2, 2)
 
 
 def test_a_step_never_resets_the_simulator(make_env):

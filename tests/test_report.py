@@ -154,3 +154,37 @@ def test_figures_and_text_files_use_a_unique_temporary_name(tmp_path):
     runner.write_text_atomic(str(tmp_path / "table.md"), "| a |\n")
     assert sorted(os.listdir(tmp_path)) == ["curves.png", "table.md"]
     assert open(target, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_rollouts_split_a_meta_episode_by_inner_episode(make_env):
+    """analyze on a meta-episode run: each inner episode's return, feedback, feedforward and
+    energy, against a hand computation. The policy u = (0.1, 0.2 + 0.4 s) reads the scaled
+    episode index s (0, 0.5, 1): constant within an episode, so the feedforward is 0 once the
+    jump at each boundary (a new episode's first action) is left out; ||du/dx||^2 = 0.16."""
+    from types import SimpleNamespace
+
+    import jax
+    import jax.numpy as jnp
+
+    from minatt_jax import acting
+    from minatt_jax.analysis.report import by_inner_episode, make_rollouts, visited_states
+    from minatt_jax.envs.meta_episode import MetaEpisode
+
+    episodes, steps = 3, 10
+    env = MetaEpisode(make_env("point_robot_dense"), episodes, steps)
+    u = lambda x: jnp.stack([0.1 + 0.0 * x[0], 0.2 + 0.4 * x[-1]])  # noqa: E731
+    policy = acting.Policy(act=lambda x, key: u(x), control=u)
+    rollouts = make_rollouts(env, lambda params, norm: policy, env.max_steps)
+    tools = SimpleNamespace(inner_episodes=episodes, rollouts=rollouts)
+    visited = visited_states(tools, None, None, jax.random.PRNGKey(0), 2, env.nominal_task())
+    got = by_inner_episode(visited, episodes)
+
+    pushes = [0.2 + 0.4 * s for s in (0.0, 0.5, 1.0)]
+    t = np.arange(1, steps + 1)[:, None]
+    goal = np.array([0.0, 1.0])  # the nominal goal at pi / 2; every episode starts at the origin
+    returns = [-np.sum(np.linalg.norm(0.1 * t * np.array([0.1, p]) - goal, axis=1)) for p in pushes]
+    np.testing.assert_allclose(got["return"], returns, rtol=1e-5)
+    np.testing.assert_allclose(got["energy"], [0.01 + p**2 for p in pushes], rtol=1e-5)
+    np.testing.assert_allclose(got["feedback"], 0.16, rtol=1e-5)
+    np.testing.assert_allclose(got["feedforward"], 0.0, atol=1e-6)
+    assert np.count_nonzero(visited["episode"] == 2) == 2 * steps

@@ -98,7 +98,7 @@ def make_failure_grid(
         qvel = qvel + noise * jax.random.normal(k_v, qvel.shape)
         model = apply_task(env.mjx_model, env.nominal_fields, task)
         data = env.complete(model, mjx.forward(model, data.replace(qpos=qpos, qvel=qvel)))
-        state = state.replace(pipeline_state=data, obs=env.observation(data))
+        state = env.with_start(state, data)
 
         traj = acting.unroll(env, policy_of(params), state, steps)
         return jnp.max(env.failed(traj.next_obs))

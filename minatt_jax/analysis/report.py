@@ -13,6 +13,8 @@ aggregated. For every group the report shows
 * ``failure_grid.png``: failure rate over (forward velocity, torso pitch rate) initial states,
   per group and the difference first group - second group (``control_analysis.failed``);
 * ``maturation.png``: the feedback heatmap (first projection) from policy snapshots at chosen steps;
+* ``adaptation.png`` (runs in meta-episodes only): return, feedback, feedforward and energy per
+  inner episode of a meta-episode, the in-context adaptation curve (a table too);
 * ``tables.md`` / ``tables.json``: meta-training rows (final evaluation) and meta-testing rows
   (from ``meta_test_<variant>.json`` files in the runs), mean and std across seeds;
 * ``report.html``: all of it with the figures embedded (base64), readable offline.
@@ -82,16 +84,38 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
             f"runs of different environments: {listing}; analyze one environment at a time"
         )
     for r in runs:
-        if r.config.meta_episodes > 1:
-            raise runner.RunError(
-                f"{r.run_dir} trains in meta-episodes of {r.config.meta_episodes} episodes; "
-                "analyze reads runs of plain episodes (evaluate reports each episode's return)"
-            )
         if checkpoint.latest_policy_step(r.run_dir) is None:  # what evaluate accepts too
             raise runner.RunError(f"{r.run_dir} has no checkpoint or policy snapshot: train "
                                   "it first")  # fmt: skip
         r.group = group_label(r.config)
     return runs
+
+
+def make_rollouts(env: Any, policy_of: Callable[[Any, Any], Any], steps: int) -> Callable:
+    """A jitted ``(params, normalizer, keys (n,), task) -> per-step arrays (n, steps)`` of ``n``
+    deterministic rollouts: observations, actions, rewards, alive mask, the inner episode of each
+    step (``meta_episode_index``; 0 throughout a plain episode), ||du/dx||^2, ||du/dt||^2 and
+    ||u||^2."""
+
+    def rollout(params, norm, key, task):
+        traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
+                             probe_feedback=True)  # fmt: skip
+        u = traj.action
+        u_prev = jnp.concatenate([u[:1], u[:-1]])
+        episode = traj.env_metrics.get("meta_episode_index", jnp.zeros_like(traj.reward))
+        return {
+            "obs": traj.obs,
+            "policy_obs": traj.policy_obs,
+            "u": u,
+            "alive": traj.alive,
+            "reward": traj.reward,
+            "episode": episode.astype(jnp.int32),
+            "feedback": traj.feedback,
+            "feedforward": jnp.sum(jnp.square((u - u_prev) / env.dt), -1),
+            "energy": jnp.sum(jnp.square(u), -1),
+        }
+
+    return jax.jit(jax.vmap(rollout, in_axes=(None, None, 0, None)))
 
 
 class _GroupTools:
@@ -103,36 +127,23 @@ class _GroupTools:
         self.family = registry.get(config.algo).policy(config, env)
         self.env, self.config = env, config
         steps = config.episode_limit
-        dt = env.dt
         policy_of = self.family.deterministic
-
-        def rollout(params, norm, key, task):
-            traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
-                                 probe_feedback=True)  # fmt: skip
-            u = traj.action
-            u_prev = jnp.concatenate([u[:1], u[:-1]])
-            return {
-                "obs": traj.obs,
-                "policy_obs": traj.policy_obs,
-                "u": u,
-                "alive": traj.alive,
-                "feedback": traj.feedback,
-                "feedforward": jnp.sum(jnp.square((u - u_prev) / dt), -1),
-            }
 
         def gains(params, norm, key, task):
             """One rollout with u = K(t) x + v(t)'s parts: x, u, K and alive."""
             traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
                                  probe_gain=True)  # fmt: skip
-            return traj.policy_obs, traj.action, traj.gain, traj.alive
+            episode = traj.env_metrics.get("meta_episode_index", jnp.zeros_like(traj.reward))
+            return traj.policy_obs, traj.action, traj.gain, traj.alive, episode
 
-        self.rollouts = jax.jit(jax.vmap(rollout, in_axes=(None, None, 0, None)))
+        self.rollouts = make_rollouts(env, policy_of, steps)
         self.gains = jax.jit(gains)
         self.grid = ca.make_failure_grid(
             env, lambda p: policy_of(p[0], p[1]), steps=settings.grid_steps,
             rollouts=settings.grid_rollouts,
         )  # fmt: skip
         self.policy_like = self.family.like
+        self.inner_episodes = config.meta_episodes
 
     def restore(self, run_dir: str):
         """(step, policy parameters, normalizer) of the run's latest policy (no trainer)."""
@@ -144,23 +155,50 @@ class _GroupTools:
 
     def decompose(self, params, norm, key, task) -> dict[str, np.ndarray]:
         """u = K(t) x + v(t) along one deterministic rollout (its alive steps)."""
-        x, u, gain, alive = jax.device_get(self.gains(params, norm, key, task))
+        x, u, gain, alive, episode = jax.device_get(self.gains(params, norm, key, task))
         keep = np.asarray(alive) > 0
-        return jax.device_get(ca.decompose_gains(gain[keep], u[keep], x[keep]))
+        parts = jax.device_get(ca.decompose_gains(gain[keep], u[keep], x[keep]))
+        return {**parts, "episode": np.asarray(episode)[keep]}
 
 
-def _visited(tools: _GroupTools, params, norm, key, episodes: int, task) -> dict[str, np.ndarray]:
+def visited_states(
+    tools: _GroupTools, params: Any, norm: Any, key: jax.Array, episodes: int, task: Any
+) -> dict[str, np.ndarray]:
+    """The alive steps of ``episodes`` deterministic rollouts (per-step arrays), and each
+    rollout's return per inner episode (``returns``: (episodes, inner episodes))."""
     out = jax.device_get(tools.rollouts(params, norm, jax.random.split(key, episodes), task))
     alive = np.asarray(out["alive"]) > 0
-    first = np.zeros_like(alive)
-    first[:, 0] = True  # the feedforward term needs a previous action
+    episode = np.asarray(out["episode"])
+    first = np.ones_like(alive)  # the feedforward term needs a previous action of its episode
+    first[:, 1:] = episode[:, 1:] != episode[:, :-1]
+    inner = tools.inner_episodes
+    onehot = episode[..., None] == np.arange(inner)
+    returns = np.sum((np.asarray(out["reward"]) * alive)[..., None] * onehot, axis=1)
     return {
         "obs": np.asarray(out["obs"])[alive],
         "policy_obs": np.asarray(out["policy_obs"]),
         "alive": alive,
+        "episode": episode[alive],
         "feedback": np.asarray(out["feedback"])[alive],
         "feedforward": np.where(first, np.nan, np.asarray(out["feedforward"]))[alive],
+        "energy": np.asarray(out["energy"])[alive],
+        "returns": returns,
     }
+
+
+ADAPTATION_METRICS = ("return", "feedback", "feedforward", "energy")
+
+
+def by_inner_episode(visited: dict[str, np.ndarray], inner: int) -> dict[str, list[float]]:
+    """One run's in-context adaptation curve: per inner episode of its meta-episodes, the mean
+    return and the mean feedback, feedforward and energy over the steps of that episode."""
+    out = {"return": np.mean(visited["returns"], axis=0).tolist()}
+    for metric in ADAPTATION_METRICS[1:]:
+        values = visited[metric]
+        out[metric] = [float(np.nanmean(values[visited["episode"] == i]))
+                       if np.any(visited["episode"] == i) else float("nan")
+                       for i in range(inner)]  # fmt: skip
+    return out
 
 
 def _edges(values: list[np.ndarray], bins: int) -> np.ndarray:
@@ -277,7 +315,26 @@ def tables_markdown(tables: dict[str, Any]) -> str:
                      + " | ".join(_fmt(r, k) for k in PROFILE_METRICS) + " |")  # fmt: skip
     if not tables["meta_testing"]:
         lines.append("| (no meta_test_<variant>.json in these runs: run `minatt-jax meta-test`) |")
+    if tables.get("in_context"):
+        lines += ["", "## In-context adaptation (nominal task, per inner episode of a "
+                  "meta-episode)", "", "| group | seeds | inner episode | "
+                  + " | ".join(ADAPTATION_METRICS) + " |",
+                  "|---" * (len(ADAPTATION_METRICS) + 3) + "|"]  # fmt: skip
+        for r in tables["in_context"]:
+            lines.append(f"| {r['group']} | {r['seeds']} | {r['episode']} | "
+                         + " | ".join(_fmt(r, k) for k in ADAPTATION_METRICS) + " |")  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def in_context_rows(adaptation: dict[str, list[dict[str, list[float]]]]) -> list[dict[str, Any]]:
+    """A row per group and inner episode (1-based): each metric's mean and std over seeds."""
+    rows = []
+    for g, per_seed in adaptation.items():
+        for i in range(len(per_seed[0]["return"])):
+            values = [{k: run[k][i] for k in ADAPTATION_METRICS} for run in per_seed]
+            rows.append({"group": g, "episode": i + 1,
+                         **_mean_std_table(values, ADAPTATION_METRICS)})  # fmt: skip
+    return rows
 
 
 def profiles_figure(runs: list[Run], path: str) -> None:
@@ -349,6 +406,7 @@ def analyze(
     decomposition: dict[str, dict[str, np.ndarray]] = {}
     grids: dict[str, np.ndarray] = {}
     maturation: dict[str, dict[int, dict[str, np.ndarray]]] = {}
+    adaptation: dict[str, list[dict[str, list[float]]]] = {}  # meta-episode groups, per seed
     env = None
     for g, members in groups.items():
         log(f"analyzing {g}: {len(members)} run(s)")
@@ -363,9 +421,11 @@ def analyze(
         w = jnp.linspace(w_lo, w_hi, settings.grid)
         for n, r in enumerate(members):
             _, params, norm = t.restore(r.run_dir)
-            visited = _visited(t, params, norm, jax.random.fold_in(key, n), settings.episodes,
+            visited = visited_states(t, params, norm, jax.random.fold_in(key, n), settings.episodes,
                                nominal)  # fmt: skip
             pooled.append(visited)
+            if t.inner_episodes > 1:
+                adaptation.setdefault(g, []).append(by_inner_episode(visited, t.inner_episodes))
             grid_list.append(np.asarray(t.grid((params, norm), vx, w, jax.random.fold_in(key, 7),
                                                nominal)))  # fmt: skip
             if n == 0:
@@ -387,7 +447,8 @@ def analyze(
             if step in maturation[g]:
                 continue
             params, norm = checkpoint.load_policy_snapshot(members[0].run_dir, step, like)
-            v = _visited(t, params, norm, jax.random.fold_in(key, 5), settings.episodes, nominal)
+            v = visited_states(t, params, norm, jax.random.fold_in(key, 5), settings.episodes,
+                               nominal)  # fmt: skip
             maturation[g][step] = v
 
     assert env is not None
@@ -412,12 +473,43 @@ def analyze(
     _maturation_figure(maturation, env, settings.bins, os.path.join(out_dir, "maturation.png"))
     figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
     tables = aggregate_tables(runs)
+    if adaptation:
+        tables["in_context"] = in_context_rows(adaptation)
+        _adaptation_figure(tables["in_context"], os.path.join(out_dir, "adaptation.png"))
+        figures["adaptation.png"] = (
+            "return, feedback, feedforward and energy per inner "
+            "episode of a meta-episode (in-context adaptation)"
+        )
     markdown = tables_markdown(tables)
     runner.write_text_atomic(os.path.join(out_dir, "tables.md"), markdown)
     runner.write_json_atomic(os.path.join(out_dir, "tables.json"), tables)
     _write_html(out_dir, figures, markdown, runs)
     return {"out_dir": out_dir, "figures": list(figures), "groups": list(groups),
             "tables": tables, "failure_rates": {g: grids[g].tolist() for g in grids}}  # fmt: skip
+
+
+def _adaptation_figure(rows: list[dict[str, Any]], path: str) -> None:
+    plt = _pyplot()
+    columns = len(ADAPTATION_METRICS)
+    fig, axes = plt.subplots(1, columns, squeeze=False, figsize=(3.6 * columns, 3.2),
+                             layout="constrained")  # fmt: skip
+    for g in dict.fromkeys(r["group"] for r in rows):
+        mine = [r for r in rows if r["group"] == g]
+        x = [r["episode"] for r in mine]
+        for ax, metric in zip(axes[0], ADAPTATION_METRICS, strict=True):
+            mean = np.array([r[metric] for r in mine], dtype=float)
+            std = np.array([r[f"{metric}_std"] for r in mine], dtype=float)
+            ax.errorbar(x, mean, yerr=std, marker="o", capsize=3,
+                        label=f"{g} ({mine[0]['seeds']} seeds)")  # fmt: skip
+    for ax, metric in zip(axes[0], ADAPTATION_METRICS, strict=True):
+        ax.set_title(metric, fontsize=9)
+        ax.set_xlabel("inner episode")
+        ax.set_xticks(sorted({r["episode"] for r in rows}))
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("in-context adaptation: each episode of a meta-episode (mean +- std over "
+                 "seeds)", fontsize=10)  # fmt: skip
+    save_figure(fig, path)
 
 
 def _decomposition_figure(decomposition, dt, path):
@@ -431,6 +523,9 @@ def _decomposition_figure(decomposition, dt, path):
             t = np.arange(len(d["K_norm"])) * dt
             axes[row][0].plot(t, d["K_norm"], label=g)
             axes[row][1].plot(t, d["v_norm"], label=g)
+            for boundary in t[1:][np.diff(d["episode"]) != 0]:  # inner episodes of a meta-episode
+                for ax in axes[row]:
+                    ax.axvline(boundary, color="gray", linestyle=":", linewidth=0.8)
         axes[row][0].set_title(f"||K(t)||_F, {task}")
         axes[row][1].set_title(f"||v(t)||_2, {task}")
         for ax in axes[row]:
