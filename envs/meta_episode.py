@@ -72,8 +72,9 @@ class MetaEpisode:
     def _wrap(self, inner: State, reward: jax.Array, done: jax.Array, action: jax.Array,
               first: jax.Array, index: jax.Array, step: jax.Array, starts: State,
               belongs_to: jax.Array) -> State:  # fmt: skip
-        info = {"inner": inner, "meta_index": index, "meta_step": step, "meta_starts": starts,
-                "task": inner.info["task"]}  # fmt: skip
+        # the simulator state is held once, in pipeline_state; "inner" keeps the rest
+        info = {"inner": inner.replace(pipeline_state=None), "meta_index": index,
+                "meta_step": step, "meta_starts": starts, "task": inner.info["task"]}  # fmt: skip
         metrics = {**inner.metrics, "meta_episode_index": belongs_to.astype(jnp.float32)}
         obs = self._observe(inner, reward, action, first, index)
         return State(inner.pipeline_state, obs, reward, done, metrics, info)
@@ -91,20 +92,25 @@ class MetaEpisode:
         return self._wrap(inner, zero, zero, jnp.zeros(self.action_size), jnp.ones(()), index,
                           index, starts, index)  # fmt: skip
 
+    @staticmethod
+    def _inner(state: State) -> State:
+        """The wrapped environment's state inside the meta-episode ``state``."""
+        return state.info["inner"].replace(pipeline_state=state.pipeline_state)
+
     def with_start(self, state: State, data: Any) -> State:
         """The meta-episode ``state`` (a reset's) with its first inner episode started from the
         simulator state ``data`` (the failure grid's initial states); the later episodes keep
         the start states drawn at the reset."""
-        inner = self.env.with_start(state.info["inner"], data)
+        inner = self.env.with_start(self._inner(state), data)
         starts = jax.tree.map(lambda s, x: s.at[0].set(x), state.info["meta_starts"], inner)
         obs = jnp.concatenate([inner.obs, state.obs[inner.obs.shape[-1] :]])
-        info = {**state.info, "inner": inner, "meta_starts": starts}
+        info = {**state.info, "inner": inner.replace(pipeline_state=None), "meta_starts": starts}
         return state.replace(pipeline_state=inner.pipeline_state, obs=obs, info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
         """One step; an inner episode that ends restarts the simulator on the same task (from
         the start state drawn for the next episode when the meta-episode began)."""
-        inner = self.env.step(state.info["inner"], action)
+        inner = self.env.step(self._inner(state), action)
         index, step = state.info["meta_index"], state.info["meta_step"] + 1
         inner_ended = (inner.done > 0) | (step >= self.episode_steps)
         last = index >= self.episodes - 1

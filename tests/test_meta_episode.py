@@ -28,6 +28,9 @@ def test_sizes_and_bad_settings(wrapped):
     assert wrapped.observation_size == inner.observation_size + inner.action_size + EXTRA
     assert wrapped.action_size == inner.action_size and wrapped.dt == inner.dt
     assert wrapped.max_steps == EPISODES * STEPS
+    # the simulator state is held once (pipeline_state), not again inside the inner state
+    state = wrapped.reset(jax.random.PRNGKey(0))
+    assert state.info["inner"].pipeline_state is None
     with pytest.raises(ValueError, match="episodes >= 1"):
         MetaEpisode(inner, 0, 10)
 
