@@ -183,18 +183,25 @@ def episode_metrics(traj: Trajectory, dt: float) -> dict[str, jax.Array]:
 
     return; feedback_norm = mean ||du/dx||_F^2 (needs the probe); feedforward_norm = mean over
     t >= 1 of ||(u_t - u_{t-1}) / dt||^2; energy = mean ||u_t||^2; jerk = mean over t >= 2 of
-    ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2.
+    ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2. In a meta-episode (``meta_episode_index`` among
+    the environment's metrics) the differences run within each inner episode: the jump from one
+    episode's last action to the next one's first is no change of the control law.
     """
     alive, u = traj.alive, traj.action
     length = jnp.sum(alive)
     du = jnp.sum(jnp.square((u[1:] - u[:-1]) / dt), -1)
     ddu = jnp.sum(jnp.square((u[2:] - 2 * u[1:-1] + u[:-2]) / dt**2), -1)
+    pairs, triples = alive[1:], alive[2:]  # steps t >= 1 (t >= 2) of one episode
+    episode = (traj.env_metrics or {}).get("meta_episode_index")
+    if episode is not None:
+        same = (episode[1:] == episode[:-1]).astype(alive.dtype)
+        pairs, triples = pairs * same, triples * same[1:] * same[:-1]
     metrics = {
         "return": jnp.sum(alive * traj.reward),
         "length": length,
-        "feedforward_norm": jnp.sum(alive[1:] * du) / jnp.maximum(length - 1, 1),
+        "feedforward_norm": jnp.sum(pairs * du) / jnp.maximum(jnp.sum(pairs), 1),
         "energy": jnp.sum(alive * jnp.sum(jnp.square(u), -1)) / length,
-        "jerk": jnp.sum(alive[2:] * ddu) / jnp.maximum(length - 2, 1),
+        "jerk": jnp.sum(triples * ddu) / jnp.maximum(jnp.sum(triples), 1),
     }
     if traj.feedback is not None:
         metrics["feedback_norm"] = jnp.sum(alive * traj.feedback) / length

@@ -144,6 +144,22 @@ def test_evaluation_reports_each_inner_episodes_return(make_env):
     assert got["length"] == 36
 
 
+def test_feedforward_and_jerk_leave_out_the_jump_between_inner_episodes(make_env):
+    """u = (0, 0.2 + 0.4 s) with s the scaled episode index: constant within each inner episode,
+    so the feedforward and jerk of a meta-episode are 0; without the episode index (a plain
+    episode's reading) the jumps at the two boundaries count."""
+    env = MetaEpisode(make_env("point_robot"), 3, 6)
+    u = lambda x: jnp.stack([0.0 * x[0], 0.2 + 0.4 * x[-1]])  # noqa: E731
+    policy = acting.Policy(act=lambda x, key: u(x), control=u)
+    traj = acting.unroll(env, policy, env.reset(jax.random.PRNGKey(0)), env.max_steps)
+    got = acting.episode_metrics(traj, env.dt)
+    assert float(got["feedforward_norm"]) == 0.0 and float(got["jerk"]) == 0.0
+    assert float(got["energy"]) == pytest.approx(np.mean([0.2**2, 0.4**2, 0.6**2]), rel=1e-5)
+    plain = acting.episode_metrics(traj.replace(env_metrics={}), env.dt)
+    jump = (0.2 / env.dt) ** 2  # two boundaries among 17 differences
+    assert float(plain["feedforward_norm"]) == pytest.approx(2 * jump / 17, rel=1e-5)
+
+
 def test_a_chosen_start_begins_the_first_inner_episode_only(make_env):
     """``with_start`` (the failure grid's initial states): the first inner episode starts from
     the given simulator state and its observation shows it; the next inner episode starts from
