@@ -1,7 +1,8 @@
 """MAMBA against DreamerV3 and a random policy on point_robot: does it adapt in context?
 
     python experiments/mamba_point_robot.py [--seeds 0 1 2] [--alphas 0 0.05]
-        [--steps 60000] [--runs runs/mamba_point_robot] [--set dreamer.train_ratio=...]
+        [--steps 60000] [--dreamer-steps 25000] [--runs runs/mamba_point_robot]
+        [--set dreamer.train_ratio=...]
 
 Trains (or resumes: run it again after a stop) each agent's runs, every (alpha, seed), as one
 population at the cpu preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3
@@ -12,7 +13,9 @@ the 16 training goals of the upper half circle:
 * **mamba**: memory over the whole meta-episode;
 * **dreamer**: DreamerV3 with the same model and train ratio on plain 50-step episodes, its
   memory reset every episode (each episode is a first episode: its return is the same for every
-  k by construction);
+  k by construction). Its replayed sequences are k times shorter, so at the same train ratio
+  it makes more updates per env step: ``--dreamer-steps`` sets its env steps apart (the tables
+  give each arm's updates, to compare at equal updates);
 * **random**: a uniform random policy, in meta-episodes.
 
 Then evaluates each run's final policy (deterministic) on every training goal and on the 6
@@ -93,6 +96,8 @@ def main() -> None:
                         choices=["mamba", "dreamer"])  # fmt: skip
     parser.add_argument("--steps", type=int, default=None,
                         help="env steps per run (default: the cpu preset's, 60K)")  # fmt: skip
+    parser.add_argument("--dreamer-steps", type=int, default=None,
+                        help="env steps per DreamerV3 run (default: --steps)")  # fmt: skip
     parser.add_argument("--runs", default="runs/mamba_point_robot")
     parser.add_argument("--set", action="append", default=[], dest="overrides")
     parser.add_argument("--collect-only", action="store_true",
@@ -103,7 +108,8 @@ def main() -> None:
     arms: dict[str, list[dict]] = {}
     for agent in args.agents:
         # every (alpha, seed) of an agent in one program (population): seeds and alphas are data
-        members = [run_config(agent, alpha, seed, args.steps, args.overrides)
+        steps = args.dreamer_steps if agent == "dreamer" and args.dreamer_steps else args.steps
+        members = [run_config(agent, alpha, seed, steps, args.overrides)
                    for alpha in args.alphas for seed in args.seeds]  # fmt: skip
         out = os.path.join(args.runs, agent)
         if not args.collect_only:
@@ -112,9 +118,13 @@ def main() -> None:
         for config in members:
             alpha, seed = config.ma.alpha, config.seed
             run_dir = os.path.join(out, population.member_name(config, ["ma.alpha"]))
-            row = {"seed": seed, "run_dir": run_dir,
-                   "curve": [{"step": r["step"], "return": r["return"]}
-                             for r in runner.read_metrics(run_dir)]}  # fmt: skip
+            records = runner.read_metrics(run_dir)
+            row = {
+                "seed": seed,
+                "run_dir": run_dir,
+                "updates": int(records[-1]["updates"]),
+                "curve": [{"step": r["step"], "return": r["return"]} for r in records],
+            }
             for task_set, episodes in TASK_SETS.items():
                 m = runner.evaluate_run(run_dir, task_set, episodes, seed=100 + seed)
                 row["step"] = m["step"]
@@ -138,6 +148,7 @@ def main() -> None:
     command = ("python experiments/mamba_point_robot.py --seeds "
                + " ".join(map(str, args.seeds)) + " --alphas "
                + " ".join(f"{a:g}" for a in args.alphas) + f" --steps {reference.total_steps}"
+               + (f" --dreamer-steps {args.dreamer_steps}" if args.dreamer_steps else "")
                + "".join(f" --set {o}" for o in args.overrides))  # fmt: skip
     device = jax.devices()[0]
     result = {"command": command, "device": f"{device.platform} ({device.device_kind})",
@@ -169,14 +180,16 @@ def table(result: dict, k: int) -> str:
         lines += [
             f"## {task_set} goals\n",
             f"Random policy: episode 1 {rand[0]:.2f}, episode {k} {rand[-1]:.2f}.\n",
-            f"| arm | env steps | seeds | episode 1 | episode {k} | adaptation | feedback | "
-            "energy |",
-            "|---|---|---|---|---|---|---|---|",
+            f"| arm | env steps | updates | seeds | episode 1 | episode {k} | adaptation | "
+            "feedback | energy |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for arm, s in result["summaries"].items():
             t = s[task_set]
             steps = "/".join(sorted({f"{r['step'] // 1000}K" for r in result["runs"][arm]}))
-            lines.append(f"| {arm} | {steps} | {t['episode_1']['n']} | {cell(t['episode_1'])} | "
+            updates = np.mean([r["updates"] for r in result["runs"][arm]])
+            lines.append(f"| {arm} | {steps} | {updates:.0f} | {t['episode_1']['n']} | "
+                         f"{cell(t['episode_1'])} | "
                          f"{cell(t[f'episode_{k}'])} | {cell(t['adaptation'])} | "
                          f"{cell(t['feedback_norm'])} | {cell(t['energy'])} |")  # fmt: skip
         lines.append("")
