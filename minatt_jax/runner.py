@@ -347,7 +347,7 @@ def train_chunks(
     stops it between chunks (StoppedError, resumed on ``resume_dir``, default the first
     member's directory). Returns each member's last record."""
     trainer, dirs = members.trainer, members.dirs
-    total = max(c.total_steps for c in members.configs)
+    total = max(c.planned_steps for c in members.configs)  # whole chunks: what the log shows
     writers = [tensorboard(d) for d in dirs]
     eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in members.configs]
     records: list[dict[str, Any]] = [{} for _ in dirs]
