@@ -121,7 +121,7 @@ def main() -> None:
             records = runner.read_metrics(run_dir)
             row = {
                 "seed": seed,
-                "run_dir": run_dir,
+                "run": os.path.relpath(run_dir, args.runs),  # under --runs
                 "updates": int(records[-1]["updates"]),
                 "curve": [{"step": r["step"], "return": r["return"]} for r in records],
             }
