@@ -20,7 +20,8 @@ the 16 training goals of the upper half circle:
 
 Then evaluates each run's final policy (deterministic) on every training goal and on the 6
 out-of-distribution goals of the lower half circle, and writes
-``experiments/results/mamba_point_robot.{json,md}``: the return of episode 1 and of episode k of
+``experiments/results/mamba_point_robot.{json,md}`` (and ``mamba_point_robot_report/``, the
+``analyze`` report of every run): the return of episode 1 and of episode k of
 a meta-episode, their paired difference per seed (in-context adaptation), learning curves,
 feedback norm and energy, each as the mean over seeds with its 95% bootstrap interval.
 """
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -36,7 +38,8 @@ import numpy as np
 import stats
 
 import minatt_jax.envs as envs
-from minatt_jax import acting, population, runner
+from minatt_jax import acting, checkpoint, population, runner
+from minatt_jax.analysis.report import AnalyzeConfig, analyze
 from minatt_jax.config import preset_config, replace_fields, resolve
 from minatt_jax.envs.meta_episode import returns_by_episode
 
@@ -159,6 +162,31 @@ def main() -> None:
     text = table(result, k)
     runner.write_text_atomic(os.path.join(RESULTS, f"{NAME}.md"), text)
     print(text)
+    run_dirs = [os.path.join(args.runs, r["run"]) for rows in arms.values() for r in rows]
+    write_report(run_dirs, os.path.join(args.runs, "report"), command)
+
+
+def write_report(run_dirs: list[str], out: str, command: str) -> None:
+    """``minatt-jax analyze`` of every run (the in-context table and ``adaptation.png`` for the
+    MAMBA arms); its figures and tables go to ``results/<NAME>_report/``, ``report.html`` (the
+    same, embedded) stays under ``--runs``."""
+    steps = max(checkpoint.latest_policy_step(d) or 0 for d in run_dirs)
+    settings = AnalyzeConfig(grid=3, grid_rollouts=2,  # the point robot never fails
+                             maturation_steps=(steps // 4, steps // 2, steps))  # fmt: skip
+    analyze(run_dirs, out, settings)
+    target = os.path.join(RESULTS, f"{NAME}_report")
+    os.makedirs(target, exist_ok=True)
+    for name in os.listdir(out):
+        if name.endswith((".png", ".md", ".json")):
+            shutil.copy(os.path.join(out, name), os.path.join(target, name))
+    runner.write_text_atomic(os.path.join(target, "README.md"), (
+        f"# Analysis report: MAMBA and DreamerV3 on {ENV}\n\n"
+        f"Written by `{command}` (`minatt-jax analyze` of every run, maturation at "
+        f"{steps // 4}, {steps // 2} and {steps} env steps, a 3 x 3 failure grid: the point "
+        "robot never fails); figures and tables only, `report.html` stays under the runs "
+        "directory. `tables.md` ends with the in-context table: each inner episode of a "
+        "meta-episode on the nominal goal, mean +- std over seeds (`adaptation.png`).\n"
+    ))  # fmt: skip
 
 
 def table(result: dict, k: int) -> str:
