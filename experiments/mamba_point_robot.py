@@ -125,7 +125,7 @@ def main() -> None:
             row = {
                 "seed": seed,
                 "run": os.path.relpath(run_dir, args.runs),  # under --runs
-                "updates": int(records[-1]["updates"]),
+                "updates": int(sum(r["updates"] for r in records)),  # a record counts its chunk's
                 "curve": [{"step": r["step"], "return": r["return"]} for r in records],
             }
             for task_set, episodes in TASK_SETS.items():
