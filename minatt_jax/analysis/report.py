@@ -40,6 +40,7 @@ from minatt_jax.agents import registry
 from minatt_jax.analysis import control_analysis as ca
 from minatt_jax.analysis.plots import _pyplot, save_figure
 from minatt_jax.config import TrainConfig
+from minatt_jax.envs.meta_episode import returns_by_episode
 
 PROFILE_METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
 FIGURES = ("heatmap_feedback.png", "heatmap_feedforward.png", "profiles.png",
@@ -91,6 +92,11 @@ def load_runs(run_dirs: list[str]) -> list[Run]:
     return runs
 
 
+def inner_episode_of(traj: acting.Trajectory) -> jax.Array:
+    """The inner episode of each step (``meta_episode_index``; 0 throughout a plain episode)."""
+    return traj.env_metrics.get("meta_episode_index", jnp.zeros_like(traj.reward))
+
+
 def make_rollouts(env: Any, policy_of: Callable[[Any, Any], Any], steps: int) -> Callable:
     """A jitted ``(params, normalizer, keys (n,), task) -> per-step arrays (n, steps)`` of ``n``
     deterministic rollouts: observations, actions, rewards, alive mask, the inner episode of each
@@ -102,7 +108,7 @@ def make_rollouts(env: Any, policy_of: Callable[[Any, Any], Any], steps: int) ->
                              probe_feedback=True)  # fmt: skip
         u = traj.action
         u_prev = jnp.concatenate([u[:1], u[:-1]])
-        episode = traj.env_metrics.get("meta_episode_index", jnp.zeros_like(traj.reward))
+        episode = inner_episode_of(traj)
         return {
             "obs": traj.obs,
             "policy_obs": traj.policy_obs,
@@ -133,7 +139,7 @@ class _GroupTools:
             """One rollout with u = K(t) x + v(t)'s parts: x, u, K and alive."""
             traj = acting.unroll(env, policy_of(params, norm), env.reset(key, task), steps,
                                  probe_gain=True)  # fmt: skip
-            episode = traj.env_metrics.get("meta_episode_index", jnp.zeros_like(traj.reward))
+            episode = inner_episode_of(traj)
             return traj.policy_obs, traj.action, traj.gain, traj.alive, episode
 
         self.rollouts = make_rollouts(env, policy_of, steps)
@@ -171,9 +177,8 @@ def visited_states(
     episode = np.asarray(out["episode"])
     first = np.ones_like(alive)  # the feedforward term needs a previous action of its episode
     first[:, 1:] = episode[:, 1:] != episode[:, :-1]
-    inner = tools.inner_episodes
-    onehot = episode[..., None] == np.arange(inner)
-    returns = np.sum((np.asarray(out["reward"]) * alive)[..., None] * onehot, axis=1)
+    returns = np.asarray(returns_by_episode(out["reward"], episode, out["alive"],
+                                            tools.inner_episodes))  # fmt: skip
     return {
         "obs": np.asarray(out["obs"])[alive],
         "policy_obs": np.asarray(out["policy_obs"]),
