@@ -27,9 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from minatt_jax import min_attention as ma
-from minatt_jax.config import SACConfig, TrainConfig
+from minatt_jax.config import TrainConfig
 from minatt_jax.replay import Transitions
-from minatt_jax.sac import make_sac
+from minatt_jax.sac import SACConfig, make_sac
 from minatt_jax.training import hyper_of
 
 OBS, ACT, BATCH = 11, 3, 256
@@ -75,7 +75,7 @@ def make_runner(ma_config: ma.MAConfig, updates: int):
         state, _ = jax.lax.scan(one, state, jax.random.split(key, updates))
         return state
 
-    hyper = hyper_of(TrainConfig(sac=SACConfig(), ma=ma_config))
+    hyper = hyper_of(TrainConfig(ma=ma_config))
     return sac, sac.init(jax.random.PRNGKey(0), hyper), run
 
 

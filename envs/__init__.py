@@ -74,11 +74,37 @@ class UnavailableEnvError(UnknownNameError):
     """An environment whose model file's package is not installed (the message names it)."""
 
 
+def load_plugin_env(name: str) -> None:
+    """Imports the installed plugin that provides environment ``name`` (an entry point of group
+    ``minatt_jax.envs`` under that name, whose module calls ``register``), if there is one."""
+    from importlib.metadata import entry_points
+
+    from minatt_jax.agents.registry import ENV_ENTRY_POINTS, import_plugin
+
+    for ep in entry_points(group=ENV_ENTRY_POINTS):
+        if ep.name == name:
+            import_plugin(ep.value.partition(":")[0])
+
+
+def environment_names() -> list[str]:
+    """Every environment name: the built-in ones, those registered since and installed plugins'."""
+    from importlib.metadata import entry_points
+
+    from minatt_jax.agents.registry import ENV_ENTRY_POINTS
+
+    plugins = {ep.name for ep in entry_points(group=ENV_ENTRY_POINTS)}
+    return [*ENVIRONMENTS, *sorted(plugins - set(ENVIRONMENTS))]
+
+
 def make(name: str, physics: str | PhysicsOptions | None = None) -> LocomotionEnv:
-    """The environment ``name`` (one of ``ENV_NAMES``) with the given physics preset (None: the
-    environment's default, ``fast`` but for cheetah_run's DMC settings)."""
+    """The environment ``name`` (one of ``environment_names()``) with the given physics preset
+    (None: the environment's default, ``fast`` but for cheetah_run's DMC settings)."""
     if name not in ENVIRONMENTS:
-        raise UnknownNameError(f"unknown environment {name!r}; choose from {', '.join(ENV_NAMES)}")
+        load_plugin_env(name)
+    if name not in ENVIRONMENTS:
+        raise UnknownNameError(
+            f"unknown environment {name!r}; choose from {', '.join(environment_names())}"
+        )
     if isinstance(physics, str) and physics not in PHYSICS_PRESETS:
         raise UnknownNameError(
             f"unknown physics preset {physics!r}; choose from {', '.join(PHYSICS_PRESETS)}"

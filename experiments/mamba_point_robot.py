@@ -58,8 +58,7 @@ def run_config(agent: str, alpha: float, seed: int, steps: int | None, overrides
     if agent == "dreamer":
         config = replace_fields(config, {
             "algo": "dreamer", "meta_episodes": 1,
-            "dreamer.batch_length": config.max_episode_steps, "dreamer.head_states": 0,
-            "dreamer.imag_starts": 0, "dreamer.wm_horizon_start": 0,
+            "dreamer.batch_length": config.max_episode_steps,
         })  # fmt: skip
     return resolve(config)
 

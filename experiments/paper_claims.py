@@ -37,8 +37,8 @@ import stats
 import study as xt
 
 from minatt_jax import runner
-from minatt_jax.config import SACConfig
 from minatt_jax.min_attention import MAConfig
+from minatt_jax.sac import SACConfig
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")

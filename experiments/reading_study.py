@@ -53,7 +53,7 @@ MIN_SEEDS = xt.MIN_SEEDS  # fewer seeds per arm: no verdict
 def members(args: argparse.Namespace) -> list[Any]:
     """Every (environment, normalization, placement, alpha, seed); alpha 0 once per
     environment and normalization (no penalty: the placement does not matter)."""
-    preset = xt.study_preset(args)
+    preset = xt.study_preset(args, args.algo)
     out = []
     for env in args.envs:
         for norm in (n == "on" for n in args.normalize):

@@ -222,13 +222,14 @@ def add_no_tables_argument(parser: argparse.ArgumentParser) -> None:
                              "the whole grid's")  # fmt: skip
 
 
-def study_preset(args: argparse.Namespace) -> Any:
-    """The scale's preset with the ``--set`` overrides: what every member starts from. A bad
+def study_preset(args: argparse.Namespace, algo: str = "mbmpo") -> Any:
+    """The scale's preset for ``algo`` (the study's agent: its settings groups are what
+    ``--set`` may name) with the ``--set`` overrides: what every member starts from. A bad
     override exits 2 with one line."""
-    from minatt_jax.config import PRESETS, apply_overrides
+    from minatt_jax.config import PRESETS, apply_overrides, with_overrides
 
     try:
-        return apply_overrides(PRESETS[args.scale], args.overrides)
+        return apply_overrides(with_overrides(PRESETS[args.scale], algo=algo), args.overrides)
     except ValueError as e:
         print(f"{os.path.basename(sys.argv[0])}: {e}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -27,7 +27,6 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from minatt_jax import normalizer as obs_norm
 from minatt_jax import run_files
 from minatt_jax.config import TrainConfig
 
@@ -375,21 +374,20 @@ class Policy(NamedTuple):
     config: TrainConfig
     step: int
     env: Any  # the run's environment (LocomotionEnv)
-    agent: Any  # the algorithm's agent functions (SAC: control, sample, ...; DreamerAgent)
+    agent: Any  # the family's learner functions (the agent's own; see PolicyFamily.agent)
     actor_params: Any  # the policy's parameters (DreamerV3: world model and actor)
     normalizer: Any
     family: Any  # agents.base.PolicyFamily: how these parameters act
 
     def control(self, obs: jax.Array) -> jax.Array:
-        """The deterministic control u(obs) (observation normalization applied) of a
-        feedforward policy; a recurrent one (DreamerV3) acts through ``acting_policy``."""
-        if self.family.recurrent:
-            raise CheckpointError(
-                f"the {self.config.algo} policy is recurrent: u depends on its memory; act with "
-                "policy.acting_policy() (acting.unroll runs it)"
-            )
-        x = obs_norm.normalize(self.normalizer, obs, self.config.sac.normalize_obs)
-        return self.agent.control(self.actor_params, x)
+        """The deterministic control u(obs) on a raw observation (the family's own
+        normalization applied) of a feedforward policy; a recurrent one (DreamerV3) acts
+        through ``acting_policy``."""
+        try:
+            u = self.family.control(self.actor_params, self.normalizer)
+        except ValueError as e:
+            raise CheckpointError(f"the {self.config.algo} policy: {e}") from None
+        return u(obs)
 
     def acting_policy(self, stochastic: bool = False) -> Any:
         """The policy as an ``acting`` policy (deterministic or sampling) for ``acting.unroll``."""

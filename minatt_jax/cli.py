@@ -59,13 +59,81 @@ _non_negative_int = _number(int, 0, False, "an integer >= 0")
 _non_negative_float = _number(float, 0.0, False, "a finite number >= 0")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser for all subcommands."""
+def _plugin_option() -> argparse.ArgumentParser:
+    """``--plugin MODULE``, on every command: a module to import first (it registers agents or
+    environments); ``MINATT_JAX_PLUGINS`` names more (comma-separated)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument(
+        "--plugin", action="append", default=argparse.SUPPRESS, metavar="MODULE",
+        help="import MODULE first: it registers an agent or environment (repeatable; also "
+        "MINATT_JAX_PLUGINS=mod1,mod2; installed plugins and a run's own agent load by "
+        "themselves)",
+    )  # fmt: skip
+    return parent
+
+
+_PLUGINS = _plugin_option()
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("minatt-jax")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def settings_epilog() -> str:
+    """Every setting ``--set`` and ``--sweep`` take (the common ones, then each known agent's
+    groups), with its rule and its cpu-preset value, from the field declarations."""
+    from minatt_jax.agents import registry
+    from minatt_jax.config import PRESETS, settings_rows, with_overrides
+
+    lines = ["settings (--set GROUP.FIELD=VALUE, --sweep GROUP.FIELD=V1,V2; cpu preset values):"]
+    seen: set[str] = set()
+    for algo in registry.names():
+        try:
+            config = with_overrides(PRESETS["cpu"], algo=algo)
+        except ValueError:
+            continue
+        rows = [r for r in settings_rows(config) if r["name"] not in seen]
+        if not rows:
+            continue
+        lines.append(f"\n  {'common' if not seen else '--algo ' + algo}:")
+        for row in rows:
+            seen.add(row["name"])
+            default = row["default"]
+            shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+            meaning = f"  {row['meaning']}" if row["meaning"] else ""
+            lines.append(f"    {row['name']} = {shown}  ({row['rule'] or row['type']}){meaning}")
+    return "\n".join(lines)
+
+
+def _load_plugins(argv: Sequence[str]) -> None:
+    """Imports the ``--plugin`` modules of ``argv`` and ``MINATT_JAX_PLUGINS``'s before the
+    parser is built (so ``--algo`` and ``--help`` know their agents)."""
+    from minatt_jax.agents import registry
+
+    pre = argparse.ArgumentParser(add_help=False, parents=[_PLUGINS])
+    known, _ = pre.parse_known_args(list(argv))
+    try:
+        registry.load_plugins(getattr(known, "plugin", []))
+    except registry.PluginError as e:
+        raise UserError(str(e)) from None
+
+
+def build_parser(settings_help: bool = False) -> argparse.ArgumentParser:
+    """The argument parser for all subcommands (``settings_help``: ``train --help`` lists every
+    setting of every known agent, from the field declarations)."""
     from minatt_jax.agents import registry
     from minatt_jax.envs import ENV_NAMES, PHYSICS_PRESETS, TARGET_SET_NAMES, TASK_SET_NAMES
 
-    parser = _Parser(prog="minatt-jax", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="minatt-jax", description=__doc__.splitlines()[0], parents=[_PLUGINS])
+    parser.add_argument("--version", action="version", version=f"minatt-jax {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    add_parser = sub.add_parser
+    sub.add_parser = lambda *a, **k: add_parser(*a, parents=[_PLUGINS], **k)  # type: ignore
 
     p_envs = sub.add_parser("envs", help="list environments, dimensions and task sets")
     p_envs.add_argument("--json", action="store_true", help="print one JSON object")
@@ -95,7 +163,11 @@ def build_parser() -> argparse.ArgumentParser:
     from minatt_jax.config import PRESETS
     from minatt_jax.min_attention import ESTIMATORS, MODES, PLACEMENTS, TEMPORAL_READINGS
 
-    p_train = sub.add_parser("train", help="train an agent (writes a run directory)")
+    p_train = sub.add_parser(
+        "train", help="train an agent (writes a run directory)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=settings_epilog() if settings_help else None,
+    )  # fmt: skip
     p_train.add_argument("--env", default=None, help=f"one of {', '.join(ENV_NAMES)}")
     p_train.add_argument("--algo", default=None, help=f"one of {', '.join(registry.names())}")
     p_train.add_argument("--preset", default=None, choices=tuple(PRESETS),
@@ -243,35 +315,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
-    import minatt_jax.envs as envs
+    from minatt_jax import summaries
 
-    table = {}
-    for name in envs.ENV_NAMES:
-        try:
-            env = envs.make(name)
-        except envs.UnavailableEnvError as e:
-            table[name] = {"unavailable": str(e)}
-            continue
-        table[name] = {
-            "observation_size": env.observation_size,
-            "action_size": env.action_size,
-            "dt": env.dt,
-            "frame_skip": env.frame_skip,
-            "task_sets": {s: envs.task_list(env, s)[1] for s in envs.task_set_names(env)},
-        }
-    if args.json:
-        print(json.dumps(table, indent=2))
-    else:
-        print(f"{'env':12s} {'obs':>4s} {'act':>4s} {'dt':>6s}  task sets (tasks)")
-        for name, row in table.items():
-            if "unavailable" in row:
-                print(f"{name:12s} {row['unavailable']}")
-                continue
-            sets = ", ".join(f"{s} ({len(t)})" for s, t in row["task_sets"].items())
-            print(
-                f"{name:12s} {row['observation_size']:4d} {row['action_size']:4d} "
-                f"{row['dt']:6.3f}  {sets}"
-            )
+    table = summaries.environments()
+    print(
+        json.dumps(table, indent=2) if args.json else "\n".join(summaries.environment_lines(table))
+    )
     return table
 
 
@@ -292,21 +341,9 @@ def _cmd_rollout(args: argparse.Namespace) -> dict[str, Any]:
     summary = {"env": args.env, "variant": args.variant if not args.task else ";".join(labels),
                "policy": args.policy, "steps": args.steps, "seed": args.seed,
                "physics": args.physics or env.default_physics, **result}  # fmt: skip
-    rows, steps_per_s, compile_s = (
-        summary["tasks"],
-        summary["env_steps_per_s"],
-        summary["compile_s"],
-    )
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(f"{'task':40s} {'return':>10s} {'length':>7s}")
-        for row in rows:
-            print(f"{row['task']:40s} {row['return']:10.2f} {row['length']:7d}")
-        print(
-            f"mean return {summary['mean_return']:.2f} | {steps_per_s:,.0f} env steps/s "
-            f"({len(tasks)} envs in one vmapped call) | compile {compile_s:.1f} s"
-        )
+    from minatt_jax.summaries import rollout_lines
+
+    print(json.dumps(summary, indent=2) if args.json else "\n".join(rollout_lines(summary)))
     if args.out:
         _write_json_atomic(args.out, summary)
         print(f"wrote {args.out}")
@@ -329,68 +366,15 @@ _TRAIN_FLAGS = {
 }  # fmt: skip
 
 
-# Why each training default is what it is (the values themselves are read from the cpu preset).
-_DEFAULT_SOURCES = {
-    "env": "the paper's first environment",
-    "algo": "model-free SAC; mbmpo is the paper's meta-learner",
-    "alpha": "plain SAC, the paper's baseline; 0.05 is the best setting measured on hopper "
-    "(docs: Training with minimum attention)",
-    "ma_mode": "the paper's penalty, feedback and temporal terms",
-    "estimator": "exact, and cheaper than jacfwd for a policy with fewer outputs than inputs",
-    "probes": "read by the hutchinson estimator only",
-    "subsample": "batch states the penalty reads; enough for an exact mean within noise",
-    "interval": "the feedback term on every update, as the paper",
-    "temporal": "the paper appendix's reading, the change of u between updates",
-    "placement": "the reading study's best return at a 21x lower feedback norm on hopper SAC",
-    "noise": "SAC's own Gaussian exploration",
-    "steps": "the preset's",
-    "eval_every": "the preset's",
-    "num_envs": "one env step per update, as the paper",
-    "seed": "",
-    "normalize_reward": "the reading study's best SAC arm ran without it",
-    "normalize_obs": "raw observations, as the paper",
-    "caps_lambda_t": "CAPS, a baseline regularizer, off",
-    "caps_lambda_s": "CAPS, a baseline regularizer, off",
-    "first_order": "second-order MAML, as the paper",
-    "inner": "the paper's Algorithm 1",
-    "outer": "the paper's Algorithm 1",
-    "ensemble_size": "the paper appendix and MBPO",
-    "elites": "min(5, ensemble size), as MBPO",
-    "rollout_batch": "MBPO's hopper value",
-    "updates_per_step": "1 for sac, the paper's 2 for mbpo and mbmpo",
-    "inner_lr": "the paper appendix's beta",
-}
-
-
-def _default_value(field: str) -> Any:
-    """A training field's value in the cpu preset (None where the agent derives it)."""
-    from minatt_jax.config import PRESETS
-
-    value: Any = PRESETS["cpu"]
-    for part in field.split("."):
-        value = getattr(value, part)
-    return value
-
-
 def _state_defaults(p_train: argparse.ArgumentParser) -> None:
-    """Append each alias flag's default (from the cpu preset) and its source to its help."""
+    """Append each alias flag's default (cpu preset) and where it comes from, as its field
+    declares them, to its help."""
+    from minatt_jax.config import default_note
+
     for action in p_train._actions:
-        if action.dest not in _DEFAULT_SOURCES:
-            continue
-        value = _default_value(_TRAIN_FLAGS[action.dest])
-        if value is None:
-            shown = "derived"
-        elif isinstance(value, bool):
-            shown = "on" if value else "off"
-        elif isinstance(value, int):
-            shown = f"{value:,}"
-        elif isinstance(value, float):
-            shown = f"{value:g}"
-        else:
-            shown = str(value)
-        source = _DEFAULT_SOURCES[action.dest]
-        note = f"default {shown}: {source}" if source else f"default {shown}"
-        action.help = f"{action.help}; {note}" if action.help else note
+        if action.dest in _TRAIN_FLAGS and action.dest not in ("variant",):
+            note = default_note(_TRAIN_FLAGS[action.dest])
+            action.help = f"{action.help}; {note}" if action.help else note
 
 
 def _train_config(args: argparse.Namespace):
@@ -500,11 +484,10 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
         )
     except runner.RunError as e:
         raise UserError(str(e), e.exit_status) from None
-    print(f"\n{'member':40s} {'return':>10s} {'feedback':>10s} {'energy':>8s}")
-    for m, r in zip(members, records, strict=True):
-        if r:
-            name = population.member_name(m, swept)
-            print(f"{name:40s} {r['return']:10.2f} {r['feedback_norm']:10.3f} {r['energy']:8.3f}")
+    from minatt_jax.summaries import population_lines
+
+    names = [population.member_name(m, swept) for m in members]
+    print("\n".join(population_lines(names, records)))
     print(f"\nindex: {index_path}; each member's directory reads like a single run "
           "(evaluate, meta-test, analyze)")  # fmt: skip
     return records
@@ -537,19 +520,9 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     except runner.RunError as e:
         raise UserError(str(e), e.exit_status) from None
     if record:
-        print("\nfinal evaluation (deterministic policy, mean +- std over episodes)")
-        for key in ("return", "feedback_norm", "feedforward_norm", "energy", "jerk", "smoothness"):
-            print(f"  {key:18s} {record[key]:12.4f} +- {record[key + '_std']:.4f}")
-        print(f"  {'env_steps_per_s':18s} {record['env_steps_per_s']:12.1f}")
-        print(f"  {'updates_per_s':18s} {record['updates_per_s']:12.1f}")
-        if "model_holdout_mse" in record:
-            print(f"  {'model_holdout_mse':18s} {record['model_holdout_mse']:12.4f} "
-                  f"(elites {record['model_elites']})")  # fmt: skip
-            print(f"  {'imagined_per_s':18s} {record['imagined_per_s']:12.1f}")
-        from minatt_jax.reference import comparison_lines
+        from minatt_jax.summaries import final_evaluation_lines
 
-        for line in comparison_lines(config, record):
-            print(line)
+        print("\n".join(final_evaluation_lines(config, record)))
     print(f"\nfiles in {out}: config.json, metrics.jsonl, tensorboard/, checkpoints/, "
           "policy_snapshots/")  # fmt: skip
     return record
@@ -563,14 +536,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
                                       tuple(args.task), args.engine)  # fmt: skip
     except runner.RunError as e:
         raise UserError(str(e)) from None
-    if args.json:
-        print(json.dumps(metrics))
-    else:
-        print(f"{args.run_dir} at step {metrics['step']} on {metrics['variant']} "
-              f"({metrics['episodes']} episodes, {metrics['engine']})")  # fmt: skip
-        for key in ("return", "length", "feedback_norm", "feedforward_norm", "energy", "jerk",
-                    "smoothness"):  # fmt: skip
-            print(f"  {key:18s} {metrics[key]:12.4f} +- {metrics[key + '_std']:.4f}")
+    from minatt_jax.summaries import evaluation_lines
+
+    print(json.dumps(metrics) if args.json else "\n".join(evaluation_lines(args.run_dir, metrics)))
     return metrics
 
 
@@ -605,11 +573,9 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     if args.json:
         print(json.dumps(result))
     else:
-        mean = result["mean_over_tasks"]
-        print(f"mean over {len(result['tasks'])} tasks, before -> after {settings.adapt_steps} "
-              "adaptation steps:")  # fmt: skip
-        for key, v in mean.items():
-            print(f"  {key:18s} {v['before']:12.4f} -> {v['after']:12.4f}")
+        from minatt_jax.summaries import meta_test_lines
+
+        print("\n".join(meta_test_lines(result)))
         print(f"wrote {path} and {png}")
     return result
 
@@ -638,10 +604,10 @@ def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> dict[str, Any]:
-    from minatt_jax import checkpoint, runner
+    from minatt_jax import checkpoint, run_files, runner
 
     try:
-        runner.load_config(args.run_dir)
+        run_files.read_config_json(args.run_dir)  # any run, its agent installed or not
         manifest = checkpoint.describe(args.run_dir, args.step)
     except (runner.RunError, checkpoint.CheckpointError) as e:
         raise UserError(str(e)) from None
@@ -731,7 +697,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     guard = run_guard.exit_on_signals() if console else run_guard.sigterm_raises()
     try:
         with guard:
-            args = build_parser().parse_args(argv)
+            argv = sys.argv[1:] if argv is None else list(argv)
+            _load_plugins(argv)
+            wants_help = "train" in argv and ("-h" in argv or "--help" in argv)
+            args = build_parser(settings_help=wants_help).parse_args(argv)
             commands = {
                 "envs": _cmd_envs,
                 "rollout": _cmd_rollout,

@@ -1,5 +1,6 @@
-"""Frozen configuration dataclasses, the named presets ``smoke``, ``cpu`` and ``paper``, and the
-one place that turns a preset plus overrides into a run's configuration.
+"""The run's configuration: its common fields, the shared groups ``ma`` and ``caps``, and the
+settings groups its agent owns; the named presets ``smoke``, ``cpu`` and ``paper``; the one place
+that turns a preset plus overrides into a run's configuration.
 
 * ``apply_overrides(config, ["ma.alpha=0.5", "mb.meta_inner_lr=1e-3"])``: dotted overrides of any
   field, typed from the dataclass annotations (``with_overrides`` is the keyword form for code);
@@ -7,9 +8,16 @@ one place that turns a preset plus overrides into a run's configuration.
   rule. The CLI, the runner, experiments and benchmarks all call it; ``make_train`` refuses an
   unresolved configuration.
 
-Derived defaults: ``task_set`` and ``updates_per_step`` are the agent's (its registry entry's
-``defaults``: mbmpo meta-trains on the "train" tasks, the model-based agents make 2 updates per
-env step as in the paper's appendix); ``model.num_elites`` is min(5, ensemble_size);
+An agent's own settings (``sac.*``, ``mb.*``, ``dreamer.*``, a plugin's ``td3.*``) are not
+declared here: its ``AgentSpec.groups`` declares them (``agents.registry.SettingsGroup``), and a
+configuration holds exactly the groups of its ``algo``, read as attributes (``config.sac``).
+Switching the algorithm (``with_overrides(config, algo="mbpo")``) keeps the groups both agents
+own, gives the others their values in the configuration's preset, and applies the new agent's
+``preset_settings``; the caller's own values are applied after all of that.
+
+Derived defaults: ``task_set``, ``updates_per_step``, ``ma.placement`` and the agent's own
+optional fields are the agent's (its ``defaults`` and ``placements``: mbmpo meta-trains on the
+"train" tasks, the model-based agents make 2 updates per env step as in the paper's appendix);
 ``ma.temporal_dt`` is 1 update for the parameter reading and the environment's dt for the rollout
 reading.
 """
@@ -20,142 +28,95 @@ import copy
 import dataclasses
 import math
 import typing
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from minatt_jax.agents import registry
-from minatt_jax.dreamer.config import DreamerConfig
-from minatt_jax.dynamics_ensemble import ModelConfig
 from minatt_jax.fields import check, setting
 from minatt_jax.min_attention import CAPSConfig, MAConfig
 
-
-@dataclasses.dataclass(frozen=True)
-class MBConfig:
-    """The model-based loop (mbpo, mbmpo): defaults are the paper's appendix / MBPO hopper values.
-
-    Attributes:
-      epoch_length: env steps per epoch (the rollout-length schedule counts epochs).
-      model_train_every: env steps between model fits (each followed by a rollout).
-      rollout_batch: start states per rollout (split evenly over the slots).
-      rollout_schedule: (start_epoch, end_epoch, min_len, max_len): the rollout length grows
-        linearly from min_len to max_len between the two epochs (official MBPO's and mbrl-lib's
-        hopper schedule, epochs 20 -> 150, length 1 -> 15; minatt-jax's earlier default ended at
-        epoch 100).
-      model_buffer_size: capacity of the imagined-transition buffer (all slots together).
-      real_ratio: fraction of each agent batch drawn from real data (the rest from the model).
-      obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
-      meta_inner_lr: beta of the MAML inner step theta' = theta - beta grad L_i(theta).
-      meta_first_order: drop the inner gradient's dependence on theta (first-order MAML).
-      meta_inner: inner-step objective, "sac" (the SAC actor loss) or "vpg" (REINFORCE on
-        imagined trajectories of ``vpg_horizon`` steps from ``task batch`` start states).
-      meta_outer: outer step, "sac" (Adam on the meta objective) or "trpo" (a trust-region step
-        on it with KL <= ``trpo_max_kl``).
-    """
-
-    epoch_length: int = setting(1000, ge=1)
-    model_train_every: int = setting(250, ge=1)
-    rollout_batch: int = setting(100_000, ge=1)
-    rollout_schedule: tuple[int, int, int, int] = setting(
-        (20, 150, 1, 15), length=4, item={"kind": int, "ge": 0}
-    )
-    model_buffer_size: int = setting(2_000_000, ge=1)
-    real_ratio: float = setting(0.05, ge=0, le=1)
-    obs_clip: float = setting(100.0, gt=0)
-    meta_inner_lr: float = setting(1e-3, ge=0)
-    meta_first_order: bool = setting(False)
-    meta_inner: str = setting("sac", choices=("sac", "vpg"))
-    vpg_horizon: int = setting(10, ge=1)
-    meta_outer: str = setting("sac", choices=("sac", "trpo"))
-    trpo_max_kl: float = setting(0.01, gt=0)
-
-    def __post_init__(self) -> None:
-        check(self, "mb")
-        start, end, lo, hi = self.rollout_schedule
-        if not (0 < lo <= hi and start <= end):
-            raise ValueError("mb.rollout_schedule must be (start_epoch, end_epoch, min_len, "
-                             "max_len) with start <= end and 0 < min <= max, got "
-                             f"{self.rollout_schedule}")  # fmt: skip
-
-    def rollout_length(self, epoch):
-        """The scheduled rollout length at ``epoch`` (works on ints and traced arrays)."""
-        start, end, lo, hi = self.rollout_schedule
-        frac = (epoch - start) / max(end - start, 1)
-        frac = frac * (frac > 0)
-        frac = frac - (frac - 1) * (frac > 1)
-        return (lo + frac * (hi - lo)) // 1
-
-
-@dataclasses.dataclass(frozen=True)
-class SACConfig:
-    """SAC settings (paper appendix): 256x256 ReLU, Adam 3e-4, gamma 0.99, tau 0.005.
-
-    ``normalize_reward``: the paper's "rewards were normalized during training", read as the
-    common running scale of the return (as gym's ``NormalizeReward`` / baselines'
-    ``VecNormalize``): every environment keeps its discounted return G <- gamma G + r (zeroed
-    when an episode ends), the running variance of G over all steps is tracked, and the rewards
-    of every SAC batch (real, imagined, adaptation) are divided by sqrt(var + 1e-8), not
-    shifted. MA's reward placement then subtracts its penalty from the scaled reward.
-    """
-
-    hidden: tuple[int, ...] = setting((256, 256), min_length=1, item={"kind": int, "ge": 1})
-    actor_lr: float = setting(3e-4, ge=0)
-    critic_lr: float = setting(3e-4, ge=0)
-    entropy_lr: float = setting(3e-4, ge=0)
-    gamma: float = setting(0.99, ge=0, lt=1)
-    tau: float = setting(0.005, gt=0, le=1)
-    batch_size: int = setting(256, ge=1)
-    init_entropy_coef: float = setting(1.0, gt=0)
-    target_entropy: float | None = setting(None, kind=float, optional=True)  # None = -act_dim
-    log_std_min: float = setting(-20.0)
-    log_std_max: float = setting(2.0)
-    normalize_obs: bool = setting(False)
-    normalize_reward: bool = setting(False)
-
-    def __post_init__(self) -> None:
-        check(self, "sac")
-        if not self.log_std_min < self.log_std_max:
-            raise ValueError(f"sac.log_std_min ({self.log_std_min}) must be below "
-                             f"sac.log_std_max ({self.log_std_max})")  # fmt: skip
+# Groups every agent shares (an agent's own groups may take no name of these or of a top field).
+COMMON_GROUPS = ("ma", "caps")
+# Groups of the configuration format before agents owned their settings: every run held all
+# four; a run's config.json read back keeps those its agent owns and drops the others.
+LEGACY_GROUPS = ("sac", "model", "mb", "dreamer")
 
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """Everything a training run needs; saved as ``config.json`` in the run directory."""
+    """Everything a training run needs; saved as ``config.json`` in the run directory.
+
+    The agent's own settings groups are read as attributes (``config.sac``, ``config.mb``):
+    ``groups`` holds them, exactly those of ``algo``'s ``AgentSpec.groups`` (filled in on
+    construction, each with its value in ``preset`` where not given).
+    """
 
     # env, algo, task_set, tasks and physics name registered things: ``resolve`` checks them.
-    env: str = "hopper"
-    algo: str = "sac"
+    env: str = setting("hopper", why="the paper's first environment")
+    algo: str = setting("sac", why="model-free SAC; mbmpo is the paper's meta-learner")
     preset: str = setting("cpu", choices=("smoke", "cpu", "paper"))
     task_set: str | None = None  # None: the agent's default ("train" for mbmpo, else "nominal")
     tasks: tuple[str, ...] = ()  # custom tasks ("mass=1.25,slope=0.1"); replace task_set if given
     physics: str | None = None  # None: the environment's default (fast; gym for cheetah_run)
     seed: int = setting(0, ge=0, lt=2**32)
-    total_steps: int = setting(50_000, ge=1)
-    num_envs: int = setting(1, ge=1)
+    total_steps: int = setting(50_000, ge=1, why="the preset's")
+    num_envs: int = setting(1, ge=1, why="one env step per update, as the paper")
     # agent updates per env step; None: the agent's default
-    updates_per_step: int | None = setting(None, kind=int, ge=1, optional=True)
+    updates_per_step: int | None = setting(
+        None, kind=int, ge=1, optional=True,
+        why="the agent's: 1 for sac, the paper's 2 for mbpo and mbmpo",
+    )  # fmt: skip
     warmup_steps: int = setting(5_000, ge=0)
     buffer_size: int = setting(1_000_000, ge=1)
     max_episode_steps: int = setting(1000, ge=1)
     # Episodes of one task per meta-episode (envs.meta_episode): an agent with memory adapts in
     # context across them; each lasts at most max_episode_steps. 1: plain episodes.
     meta_episodes: int = setting(1, ge=1)
-    eval_every: int = setting(5_000, ge=1)
+    eval_every: int = setting(5_000, ge=1, why="the preset's")
     eval_episodes: int = setting(5, ge=1)
-    noise: str = setting("gaussian", choices=("gaussian", "ou"))  # SAC's own sampling, or OU
+    noise: str = setting("gaussian", choices=("gaussian", "ou"),
+                         why="SAC's own Gaussian exploration")  # fmt: skip
     ou_theta: float = setting(0.15, ge=0)
     ou_sigma: float = setting(0.2, ge=0)
-    sac: SACConfig = SACConfig()
-    ma: MAConfig = MAConfig()
+    ma: MAConfig = MAConfig(placement=None)  # placement None: the agent's default
     caps: CAPSConfig = CAPSConfig()
-    model: ModelConfig = ModelConfig()
-    mb: MBConfig = MBConfig()
-    dreamer: DreamerConfig = DreamerConfig()
+    # The module a plugin agent came from ("" for a built-in agent): later commands import it.
+    agent_module: str = ""
+    # The agent's settings groups, (name, settings) in its declared order (see the docstring).
+    groups: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         check(self, "")
         if self.eval_every % self.num_envs:
             raise ValueError("eval_every must be a multiple of num_envs")
+        spec = registry.get(self.algo, self.agent_module)
+        for group in spec.groups:
+            if group.name in COMMON_GROUPS or group.name in {
+                f.name for f in dataclasses.fields(self)
+            }:
+                raise ValueError(f"agent {self.algo!r}: settings group {group.name!r} has the "
+                                 "name of a common setting; choose another")  # fmt: skip
+        given = dict(self.groups)
+        groups = tuple((g.name, given[g.name] if isinstance(given.get(g.name), g.settings)
+                        else g.default(self.preset)) for g in spec.groups)  # fmt: skip
+        object.__setattr__(self, "groups", groups)
+        if not self.agent_module and self.algo not in registry.BUILTIN:
+            object.__setattr__(self, "agent_module", spec.module)
+
+    def __getattr__(self, name: str) -> Any:
+        """An agent settings group by name (``config.sac``)."""
+        for group, value in self.__dict__.get("groups", ()):
+            if group == name:
+                return value
+        raise AttributeError(
+            f"{type(self).__name__} of algorithm {self.__dict__.get('algo')!r} has no field or "
+            f"settings group {name!r}"
+        )
+
+    @property
+    def group_names(self) -> tuple[str, ...]:
+        """Every settings group of this configuration: the shared ones, then the agent's."""
+        return (*COMMON_GROUPS, *(name for name, _ in self.groups))
 
     @property
     def episode_limit(self) -> int:
@@ -180,19 +141,34 @@ class TrainConfig:
 
     @property
     def is_resolved(self) -> bool:
-        return None not in (self.task_set, self.updates_per_step, self.model.num_elites,
-                            self.ma.temporal_dt)  # fmt: skip
+        if None in (self.task_set, self.updates_per_step, self.ma.temporal_dt, self.ma.placement):
+            return False
+        derived = registry.get(self.algo, self.agent_module).defaults(self)
+        return all(value_of(self, k) is not None for k in derived)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """The configuration as ``config.json`` holds it: the fields, then one object per
+        settings group (``"sac": {...}``); ``agent_module`` only for a plugin agent."""
+        d = {f.name: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+             for f in dataclasses.fields(self) if f.name != "groups"
+             for v in [getattr(self, f.name)]}  # fmt: skip
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+        if not self.agent_module:
+            del d["agent_module"]
+        for name, value in self.groups:
+            d[name] = dataclasses.asdict(value)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """Inverse of ``to_dict`` (as read back from ``config.json``; JSON lists become tuples).
+        The agent is looked up (its recorded ``agent_module`` imported) to read its groups.
 
-        Reads the format before the one-field rule too: ``mb.agent_updates_per_step`` of a
-        model-based run becomes ``updates_per_step``; a run written before MA's placement was
-        recorded has MA in the actor loss (the default then).
+        Reads the earlier formats too: ``mb.agent_updates_per_step`` of a model-based run
+        becomes ``updates_per_step``; a run written before MA's placement was recorded has MA in
+        the actor loss (the default then); groups of the format in which every run held every
+        built-in group (``LEGACY_GROUPS``) are dropped where the agent does not own them; the
+        agent reads its own earlier formats (``AgentSpec.read_stored``).
         """
         d = copy.deepcopy(d)
         if "ma" in d:
@@ -200,10 +176,22 @@ class TrainConfig:
         legacy_updates = d.get("mb", {}).pop("agent_updates_per_step", None)
         if legacy_updates is not None and d.get("algo", "sac") != "sac":
             d["updates_per_step"] = legacy_updates
-        return _from_dict(cls, d)
+        algo = d.get("algo", "sac")
+        spec = registry.get(algo, d.get("agent_module", ""))
+        d = spec.read_stored(d)
+        names = {f.name for f in dataclasses.fields(cls)} - {"groups"}
+        groups = []
+        for key in [k for k in d if k not in names]:
+            value = d.pop(key)
+            group = spec.group(key)
+            if group is not None:
+                groups.append((key, _from_dict(group.settings, value)))
+            elif key not in LEGACY_GROUPS:
+                raise TypeError(f"unknown TrainConfig field or {algo} settings group {key!r}")
+        return _from_dict(cls, d, groups=tuple(groups))
 
 
-def _from_dict(cls: type, d: dict[str, Any]) -> Any:
+def _from_dict(cls: type, d: dict[str, Any], **extra: Any) -> Any:
     """A (nested) config dataclass from a dict; unknown keys raise TypeError."""
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
@@ -219,108 +207,105 @@ def _from_dict(cls: type, d: dict[str, Any]) -> Any:
             values[name] = tuple(value)
         else:
             values[name] = value
-    return cls(**values)
+    return cls(**values, **extra)
 
 
-PRESETS: dict[str, TrainConfig] = {
-    # A few seconds of training after compilation: for tests.
-    "smoke": TrainConfig(
-        preset="smoke",
-        total_steps=600,
-        warmup_steps=200,
-        buffer_size=5_000,
-        max_episode_steps=100,
-        eval_every=300,
-        eval_episodes=2,
-        sac=SACConfig(hidden=(32, 32), batch_size=64),
-        model=ModelConfig(
-            ensemble_size=3,
-            num_elites=2,
-            hidden=(32, 32),
-            weight_decay=(2.5e-5, 5e-5, 1e-4),
-            batch_size=64,
-            max_holdout=200,
-            max_epochs=3,
+class _Presets(Mapping[str, TrainConfig]):
+    """The named presets, each built on first use: a configuration looks its agent up in the
+    registry, which imports the agent's module (and that may import this one)."""
+
+    def __init__(self, fields: dict[str, dict[str, Any]]) -> None:
+        self._fields = fields
+        self._built: dict[str, TrainConfig] = {}
+
+    def __getitem__(self, name: str) -> TrainConfig:
+        if name not in self._built:
+            self._built[name] = TrainConfig(preset=name, **self._fields[name])
+        return self._built[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._fields)
+
+    def __len__(self) -> int:
+        return len(self._fields)
+
+
+PRESETS: Mapping[str, TrainConfig] = _Presets(
+    {
+        # A few seconds of training after compilation: for tests. (Each agent's own groups carry
+        # their smoke values: ``SettingsGroup.presets``.)
+        "smoke": dict(
+            total_steps=600,
+            warmup_steps=200,
+            buffer_size=5_000,
+            max_episode_steps=100,
+            eval_every=300,
+            eval_episodes=2,
+            updates_per_step=1,
         ),
-        updates_per_step=1,
-        # DreamerV3 at toy size: the program's structure, in seconds.
-        dreamer=DreamerConfig(
-            deter=32,
-            hidden=16,
-            stoch=4,
-            classes=4,
-            blocks=2,
-            units=32,
-            layers=2,
-            bins=41,
-            batch_size=4,
-            batch_length=16,
-            imag_length=5,
-            train_ratio=64.0,
-            warmup=10,
-        ),  # fmt: skip
-        mb=MBConfig(
-            epoch_length=100,
-            model_train_every=100,
-            rollout_batch=64,
-            rollout_schedule=(0, 2, 1, 3),
-            model_buffer_size=2_000,
+        # What runs in minutes (sac) to under an hour (mbmpo, 50K hopper steps) on 2 CPU cores
+        # (the agents' groups carry their reductions for the cpu preset).
+        "cpu": dict(
+            total_steps=50_000,
+            warmup_steps=5_000,
+            buffer_size=1_000_000,
+            max_episode_steps=1000,
+            eval_every=5_000,
+            eval_episodes=5,
         ),
-    ),
-    # What runs in minutes (sac) to under an hour (mbmpo, 50K hopper steps) on 2 CPU cores.
-    # Reduced from the paper for the model-based loop, and why (measured, meta_step.py): model
-    # fits are capped at 10 "epochs" of at most 20 minibatches, warm-started from the last fit
-    # (one 7 x 4x200 minibatch takes 13-19 ms; full-data epochs with early stopping take 20-40 s
-    # per fit, 1-2 h over the 180 fits of a 50K run). Everything else keeps the paper's values.
-    "cpu": TrainConfig(
-        preset="cpu",
-        total_steps=50_000,
-        warmup_steps=5_000,
-        buffer_size=1_000_000,
-        max_episode_steps=1000,
-        eval_every=5_000,
-        eval_episodes=5,
-        model=ModelConfig(max_epochs=10, max_batches_per_epoch=20),
-        # DreamerV3 at a size this CPU trains in an hour (benchmarks/dreamer_update.py: the
-        # official size1m with 16 x 64 batches runs 1.4 updates/s here, a day per 100K steps at
-        # train ratio 1024): half the recurrent state, sequences of 32, train ratio 256 (one
-        # update per 2 env steps). Everything else is the official proprioceptive setting.
-        dreamer=DreamerConfig(deter=256, batch_length=32, train_ratio=256.0),
-    ),
-    # The paper's appendix values (200K steps, 10 evaluation episodes).
-    "paper": TrainConfig(
-        preset="paper",
-        total_steps=200_000,
-        warmup_steps=5_000,
-        buffer_size=1_000_000,
-        max_episode_steps=1000,
-        eval_every=10_000,
-        eval_episodes=10,
-    ),
-}
+        # The paper's appendix values (200K steps, 10 evaluation episodes).
+        "paper": dict(
+            total_steps=200_000,
+            warmup_steps=5_000,
+            buffer_size=1_000_000,
+            max_episode_steps=1000,
+            eval_every=10_000,
+            eval_episodes=10,
+        ),
+    }
+)
 
 
-GROUPS = ("sac", "ma", "caps", "model", "mb", "dreamer")
 FLOAT32_MAX = 3.4028234663852886e38  # training runs in float32: larger values become inf
+# Fields that decide which agent, environment and preset the others belong to: applied first.
+IDENTITY_FIELDS = ("algo", "env")
 
 
 class OverrideError(ValueError):
     """An override naming an unknown field or giving a value of the wrong type."""
 
 
+def value_of(config: TrainConfig, dotted: str) -> Any:
+    """The value of field ``group.field`` or ``field`` of ``config``."""
+    value: Any = config
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
 def _field_type(config: TrainConfig, dotted: str) -> Any:
     """The annotation of field ``group.field`` or ``field`` (OverrideError if there is none)."""
     *group, name = dotted.split(".")
     owner: Any = config
-    if len(group) > 1 or (group and group[0] not in GROUPS):
-        raise OverrideError(f"unknown setting {dotted!r}; groups are {', '.join(GROUPS)}")
+    groups = config.group_names
+    if len(group) > 1 or (group and group[0] not in groups):
+        others = [s.name for s in _loaded_specs() if group and s.group(group[0])]
+        hint = f" ({group[0]}.* is a setting of --algo {' / '.join(others)})" if others else ""
+        raise OverrideError(f"unknown setting {dotted!r}; the groups of algorithm {config.algo} "
+                            f"are {', '.join(groups)}{hint}")  # fmt: skip
     if group:
         owner = getattr(config, group[0])
     hints = typing.get_type_hints(type(owner))
-    if name not in hints or (not group and name in GROUPS):
-        fields = sorted(f"{group[0]}.{n}" if group else n for n in hints if n not in GROUPS)
+    hidden = set(groups) | {"groups"}
+    if name not in hints or (not group and name in hidden):
+        fields = sorted(f"{group[0]}.{n}" if group else n for n in hints if n not in hidden)
         raise OverrideError(f"unknown setting {dotted!r}; choose from {', '.join(fields)}")
     return hints[name]
+
+
+def _loaded_specs() -> list[registry.AgentSpec]:
+    """The agents registered in this process (built-ins are registered once imported)."""
+    return list(registry._SPECS.values())
 
 
 def _parse(text: str, hint: Any, dotted: str) -> Any:
@@ -354,9 +339,29 @@ def _parse(text: str, hint: Any, dotted: str) -> Any:
     return text
 
 
+def _switch_agent(config: TrainConfig, algo: str, env: str) -> TrainConfig:
+    """``config`` for another agent or environment: the groups both agents own kept, the new
+    agent's other groups at their ``preset`` values, then its ``preset_settings``."""
+    switched = dataclasses.replace(
+        config, algo=algo, env=env, agent_module="" if algo != config.algo else config.agent_module
+    )
+    settings = registry.get(algo).preset_settings(config.preset, env)
+    return replace_fields(switched, settings) if settings else switched
+
+
 def replace_fields(config: TrainConfig, values: dict[str, Any]) -> TrainConfig:
     """A copy with fields set by dotted name (``{"ma.alpha": 1.0, "seed": 3}``); values are
-    checked by the dataclasses' own validation (ValueError)."""
+    checked by the dataclasses' own validation (ValueError). ``algo`` and ``env`` apply first
+    (``_switch_agent`` where they change), so the other names may be the new agent's settings."""
+    values = dict(values)
+    identity = {k: values.pop(k) for k in IDENTITY_FIELDS if k in values}
+    if identity:
+        for key, value in identity.items():
+            if not isinstance(value, str):
+                raise ValueError(f"{key} must be a name, got {value!r}")
+        algo, env = identity.get("algo", config.algo), identity.get("env", config.env)
+        if (algo, env) != (config.algo, config.env):
+            config = _switch_agent(config, algo, env)
     top: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
     for dotted, value in values.items():
@@ -366,31 +371,55 @@ def replace_fields(config: TrainConfig, values: dict[str, Any]) -> TrainConfig:
             nested.setdefault(group, {})[name] = value
         else:
             top[dotted] = value
+    groups = dict(config.groups)
     for group, fields in nested.items():
-        top[group] = dataclasses.replace(getattr(config, group), **fields)
-    return dataclasses.replace(config, **top)
+        if group in COMMON_GROUPS:
+            top[group] = dataclasses.replace(getattr(config, group), **fields)
+        else:
+            groups[group] = dataclasses.replace(groups[group], **fields)
+    if len(nested.keys() - set(COMMON_GROUPS)):
+        top["groups"] = tuple(groups.items())
+    return dataclasses.replace(config, **top) if top else config
+
+
+def _parse_items(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``"group.field=value"`` items as typed values; ``algo`` and ``env`` first, so the others
+    are typed against the agent they name."""
+    pairs = []
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise OverrideError(f"override {item!r} must look like group.field=value")
+        pairs.append((key.strip(), text.strip()))
+    identity = {k: t for k, t in pairs if k in IDENTITY_FIELDS}
+    typed = replace_fields(config, identity) if identity else config
+    values: dict[str, Any] = dict(identity)
+    for key, text in pairs:
+        if key not in IDENTITY_FIELDS:
+            values[key] = _parse(text, _field_type(typed, key), key)
+    return values
 
 
 def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> TrainConfig:
     """A copy with ``"group.field=value"`` overrides applied (OverrideError / ValueError)."""
-    values: dict[str, Any] = {}
-    for item in overrides:
-        key, sep, text = item.partition("=")
-        key = key.strip()
-        if not sep:
-            raise OverrideError(f"override {item!r} must look like group.field=value")
-        values[key] = _parse(text.strip(), _field_type(config, key), key)
-    return replace_fields(config, values)
+    return replace_fields(config, _parse_items(config, overrides))
 
 
 def dotted_fields(**fields: Any) -> dict[str, Any]:
-    """Keyword fields as dotted names (``ma_alpha`` -> ``ma.alpha``), ``None`` values dropped."""
+    """Keyword fields as dotted names (``ma_alpha`` -> ``ma.alpha``, ``td3_policy_noise`` ->
+    ``td3.policy_noise`` for the groups of the named or any registered agent), ``None`` values
+    dropped."""
+    groups = set(COMMON_GROUPS)
+    if isinstance(fields.get("algo"), str):
+        groups |= {g.name for g in registry.get(fields["algo"]).groups}
+    groups |= {g.name for spec in _loaded_specs() for g in spec.groups}
     values = {}
     for key, value in fields.items():
         if value is None:
             continue
-        group, _, name = key.partition("_")
-        values[f"{group}.{name}" if group in GROUPS and name else key] = value
+        group = max((g for g in groups if key.startswith(g + "_") and len(key) > len(g) + 1),
+                    key=len, default=None)  # fmt: skip
+        values[f"{group}.{key[len(group) + 1 :]}" if group else key] = value
     return values
 
 
@@ -404,17 +433,15 @@ def preset_config(
     preset: str, overrides: list[str] | tuple[str, ...] = (), fields: dict[str, Any] | None = None
 ) -> TrainConfig:
     """A preset for the algorithm and environment the overrides and dotted ``fields`` name:
-    ``PRESETS[preset]``, then what that agent sets in the preset for that environment
-    (``AgentSpec.preset_settings``), then ``overrides`` ("group.field=value"), then ``fields``.
+    ``PRESETS[preset]``, switched to that agent and environment (its groups' values in the
+    preset, its ``preset_settings``), then ``overrides`` ("group.field=value"), then ``fields``.
     Unresolved; OverrideError / ValueError as ``apply_overrides``."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose from {', '.join(PRESETS)}")
     fields = dict(fields or {})
     base = PRESETS[preset]
-    chosen = replace_fields(apply_overrides(base, overrides), fields)
-    settings = registry.get(chosen.algo).preset_settings(preset, chosen.env)
-    if settings:
-        base = replace_fields(base, settings)
+    identity = {k: fields[k] for k in IDENTITY_FIELDS if k in fields}
+    base = replace_fields(base, identity) if identity else base
     return replace_fields(apply_overrides(base, overrides), fields)
 
 
@@ -427,23 +454,87 @@ def resolve(config: TrainConfig) -> TrainConfig:
     import minatt_jax.envs as envs
 
     if config.env not in envs.ENVIRONMENTS:
+        envs.load_plugin_env(config.env)
+    if config.env not in envs.ENVIRONMENTS:
         raise envs.UnknownNameError(f"unknown environment {config.env!r}; choose from "
-                                    f"{', '.join(envs.ENVIRONMENTS)}")  # fmt: skip
+                                    f"{', '.join(envs.environment_names())}")  # fmt: skip
     if config.physics is not None and config.physics not in envs.PHYSICS_PRESETS:
         raise ValueError(f"physics must be one of {tuple(envs.PHYSICS_PRESETS)} (or None: the "
                          f"environment's default), got {config.physics!r}")  # fmt: skip
     if config.task_set is not None:
         envs.check_task_set_name(config.task_set)
-    agent_defaults = registry.get(config.algo).defaults(config)  # checks the agent's rules too
+    spec = registry.get(config.algo, config.agent_module)
+    placement = config.ma.placement
+    if placement is not None and config.ma.active and placement not in spec.placements:
+        raise ValueError(f"{config.algo} applies minimum attention in placement "
+                         f"{' or '.join(spec.placements)}; ma.placement {placement!r} would "
+                         "leave it out")  # fmt: skip
     values: dict[str, Any] = {}
+    if placement is None:
+        values["ma.placement"] = spec.placements[0]
+    agent_defaults = spec.defaults(config)  # checks the agent's rules too
+    for name, value in agent_defaults.items():
+        _field_type(config, name)  # a derived default must name a setting
+        if value_of(config, name) is None:
+            values[name] = value
     for name in ("task_set", "updates_per_step"):
-        if getattr(config, name) is None:
-            values[name] = agent_defaults[name]
-    if config.model.num_elites is None:
-        values["model.num_elites"] = min(5, config.model.ensemble_size)
+        if getattr(config, name) is None and name not in values:
+            raise ValueError(f"agent {config.algo} derives no default for {name}: its "
+                             f"AgentSpec.defaults must name it")  # fmt: skip
     if config.ma.temporal_dt is None:
         if config.ma.temporal == "rollout":
             values["ma.temporal_dt"] = envs.make(config.env, config.physics).dt
         else:
             values["ma.temporal_dt"] = 1.0
     return replace_fields(config, values) if values else config
+
+
+def settings_rows(config: TrainConfig) -> list[dict[str, Any]]:
+    """Every setting of ``config`` (its fields and every group's), as rows ``{"name", "type",
+    "rule", "default", "meaning"}``: what ``train --help`` and the configuration page list."""
+    from minatt_jax.fields import field_rows
+
+    rows = field_rows(config, "", skip=(*config.group_names, "groups", "agent_module"))
+    for group in config.group_names:
+        rows += field_rows(getattr(config, group), group)
+    return rows
+
+
+def default_value(dotted: str, preset: str = "cpu") -> Any:
+    """A setting's value in ``preset``: a common field's, or an agent group's (the first built-in
+    or registered agent that owns the group). None where the agent derives it."""
+    group, _, name = dotted.rpartition(".")
+    config = PRESETS[preset]
+    if group and group not in config.group_names:
+        for algo in registry.names():
+            spec = registry.get(algo)
+            if spec.group(group):
+                return getattr(spec.group(group).default(preset), name)
+    return value_of(config, dotted)
+
+
+def default_note(dotted: str, preset: str = "cpu") -> str:
+    """``"default <value>: <why>"`` of a setting in ``preset``, from its declaration (``train
+    --help`` appends it to each flag's help)."""
+    from minatt_jax.fields import why_of
+
+    value = default_value(dotted, preset)
+    group, _, name = dotted.rpartition(".")
+    owner: Any = TrainConfig
+    if group in COMMON_GROUPS:
+        owner = type(getattr(PRESETS[preset], group))
+    elif group:
+        owner = next(spec.group(group).settings for spec in map(registry.get, registry.names())
+                     if spec.group(group))  # fmt: skip
+    why = why_of(next(f for f in dataclasses.fields(owner) if f.name == name))
+    if value is None:
+        shown = "derived"
+    elif isinstance(value, bool):
+        shown = "on" if value else "off"
+    elif isinstance(value, int):
+        shown = f"{value:,}"
+    elif isinstance(value, float):
+        shown = f"{value:g}"
+    else:
+        shown = str(value)
+    return f"default {shown}: {why}" if why else f"default {shown}"

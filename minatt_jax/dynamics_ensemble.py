@@ -37,9 +37,11 @@ from minatt_jax.replay import Transitions, select_rows
 class ModelConfig:
     """Ensemble settings (defaults: the paper's appendix / MBPO)."""
 
-    ensemble_size: int = setting(7, ge=1)
+    ensemble_size: int = setting(7, ge=1, why="the paper appendix and MBPO")
     # None: min(5, ensemble_size) (``config.resolve``)
-    num_elites: int | None = setting(None, kind=int, ge=1, optional=True)
+    num_elites: int | None = setting(
+        None, kind=int, ge=1, optional=True, why="min(5, ensemble size), as MBPO"
+    )
     hidden: tuple[int, ...] = setting((200, 200, 200, 200), min_length=1,
                                       item={"kind": int, "ge": 1})  # fmt: skip
     lr: float = setting(1e-3, ge=0)

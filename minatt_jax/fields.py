@@ -13,11 +13,14 @@ rule to tests that draw values inside and outside it.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 import numbers
+import typing
 from typing import Any
 
 _RULE = "minatt_jax.rule"
+_WHY = "minatt_jax.why"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,14 +100,21 @@ class Rule:
                 and (self.lt is None or value < self.lt))  # fmt: skip
 
 
-def setting(default: Any, *, kind: type | None = None, **rule: Any) -> Any:
+def setting(default: Any, *, kind: type | None = None, why: str = "", **rule: Any) -> Any:
     """A dataclass field with ``default`` and its admissible values (``Rule``'s fields); the
-    value's kind is the default's unless given (``kind=float`` for an optional number)."""
+    value's kind is the default's unless given (``kind=float`` for an optional number); ``why``
+    says where the default comes from (``train --help`` prints it beside the value)."""
     if kind is None:
         kind = tuple if isinstance(default, tuple) else type(default)
     if "item" in rule and isinstance(rule["item"], dict):
         rule["item"] = Rule(**rule["item"])
-    return dataclasses.field(default=default, metadata={_RULE: Rule(kind=kind, **rule)})
+    metadata = {_RULE: Rule(kind=kind, **rule), _WHY: why}
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def why_of(field: dataclasses.Field) -> str:
+    """Where the field's default comes from ("" when not declared)."""
+    return field.metadata.get(_WHY, "")
 
 
 def rule_of(field: dataclasses.Field) -> Rule | None:
@@ -121,3 +131,57 @@ def check(instance: Any, group: str) -> None:
         if rule is not None and not rule.admits(value):
             name = f"{group}.{field.name}" if group else field.name
             raise ValueError(f"{name} must be {rule.describe()}, got {value!r}")
+
+
+def _meanings(cls: type) -> dict[str, str]:
+    """One line of meaning per field, from the ``Attributes:`` section of ``cls``'s docstring
+    (``name: text``, or ``a, b: text`` for several)."""
+    doc = inspect.getdoc(cls) or ""
+    meanings: dict[str, str] = {}
+    in_attributes, current = False, []
+    for line in doc.splitlines():
+        if line.strip() == "Attributes:":
+            in_attributes = True
+            continue
+        if not in_attributes:
+            continue
+        if line and not line.startswith(" "):
+            break
+        head = line.strip()
+        names, sep, text = head.partition(": ")
+        if (
+            sep
+            and line.startswith("  ")
+            and not line.startswith("    ")
+            and all(n.strip().isidentifier() for n in names.split(","))
+        ):
+            current = [n.strip() for n in names.split(",")]
+            for n in current:
+                meanings[n] = text.strip()
+        elif current and head:
+            for n in current:
+                meanings[n] += " " + head
+    return {k: v.split(". ")[0].rstrip(".") for k, v in meanings.items()}
+
+
+def field_rows(instance: Any, group: str, skip: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """The settings of a config dataclass ``instance`` as rows ``{"name", "type", "rule",
+    "default", "meaning", "why"}`` (its current values as the defaults; ``group`` prefixes the
+    names)."""
+    hints = typing.get_type_hints(type(instance))
+    meanings = _meanings(type(instance))
+    rows = []
+    for field in dataclasses.fields(instance):
+        if field.name in skip:
+            continue
+        rule = rule_of(field)
+        hint = hints[field.name]
+        rows.append({
+            "name": f"{group}.{field.name}" if group else field.name,
+            "type": getattr(hint, "__name__", None) or str(hint).replace("typing.", ""),
+            "rule": rule.describe() if rule else "a registered name" if hint is str else "",
+            "default": getattr(instance, field.name),
+            "meaning": meanings.get(field.name, ""),
+            "why": why_of(field),
+        })  # fmt: skip
+    return rows

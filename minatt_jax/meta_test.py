@@ -146,6 +146,12 @@ def meta_test(
         raise runner.RunError(str(e)) from None
     config, env, family = policy.config, policy.env, policy.family
     spec = registry.get(config.algo)
+    if spec.adapter is None:
+        raise runner.RunError(
+            f"{config.algo} runs cannot be meta-tested: the agent declares no adapter "
+            "(AgentSpec.adapter; agents.base.no_adaptation evaluates without adapting); "
+            f"evaluate it on the tasks instead: minatt-jax evaluate {run_dir} --variant {variant}"
+        )
     hyper = _learner_hyper(spec, config, settings)
     try:
         tasks, labels = envs.resolve_tasks(env, variant, task_specs)
@@ -159,8 +165,10 @@ def meta_test(
         step, parts = checkpoint.restore_items(run_dir, adapter.like, policy.step)
     except checkpoint.CheckpointError as e:
         raise runner.RunError(str(e)) from None
-    trained = parts["agent"]
-    adapting = trained.replace(hyper={k: jnp.asarray(v) for k, v in hyper.items()})
+    trained = parts["agent"] if "agent" in parts else parts
+    adapting = trained
+    if hasattr(trained, "hyper"):
+        adapting = trained.replace(hyper={k: jnp.asarray(v) for k, v in hyper.items()})
     normalizer = policy.normalizer
     key = jax.random.PRNGKey(settings.seed)
     rows = []

@@ -109,8 +109,7 @@ def evaluate(policy: Any, tasks: list[envs.Task], episodes: int, seed: int = 0) 
     ``checkpoint.Policy``) in the C engine; episode i runs ``tasks[i % len(tasks)]`` with reset
     seed ``seed + i``. The same metrics as the MJX evaluation (``evaluation.summarize``)."""
     config = policy.config
-    actor = acting.deterministic(policy.agent.control, policy.actor_params, policy.normalizer,
-                                 config.sac.normalize_obs)  # fmt: skip
+    actor = policy.family.deterministic(policy.actor_params, policy.normalizer)
 
     @jax.jit
     def step_fn(obs: jax.Array) -> tuple[jax.Array, jax.Array]:

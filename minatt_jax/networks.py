@@ -1,4 +1,4 @@
-"""Actor and twin-critic networks (flax.linen MLPs) of SAC."""
+"""Actor and twin-critic networks (flax.linen MLPs) of SAC; the MLP the other agents build on."""
 
 from __future__ import annotations
 
@@ -8,17 +8,23 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+# Hidden-layer activations by name (the names ``numpy_policy.ACTIVATIONS`` reads back).
+ACTIVATIONS = {"relu": nn.relu, "tanh": jnp.tanh, "elu": nn.elu, "swish": nn.swish}
+
 
 class MLP(nn.Module):
-    """ReLU MLP with a linear output layer."""
+    """An MLP (``activation``, ReLU by default, after each hidden layer) with a linear output
+    layer; its layers are ``Dense_0`` ... ``Dense_n`` (``numpy_policy.dense_layers``)."""
 
     hidden: Sequence[int]
     out: int
+    activation: str = "relu"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
+        act = ACTIVATIONS[self.activation]
         for width in self.hidden:
-            x = nn.relu(nn.Dense(width)(x))
+            x = act(nn.Dense(width)(x))
         return nn.Dense(self.out)(x)
 
 

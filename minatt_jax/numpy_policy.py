@@ -12,10 +12,11 @@ The file holds, besides a JSON ``metadata`` string, the observation normalizer (
 ``obs_var``; applied when ``metadata["normalize_obs"]``, with ``metadata["obs_eps"]`` and
 ``metadata["obs_clip"]``) and the actor MLP's layers ``layer_{i}/kernel`` (in, out) and
 ``layer_{i}/bias``. The action is ``tanh(mean)`` where ``mean`` is the first ``act_dim`` outputs
-of the last layer:
+of the last layer, and the hidden layers' activation is ``metadata["activation"]`` (one of
+``ACTIVATIONS``):
 
     x = clip((obs - obs_mean) / sqrt(obs_var + obs_eps), -obs_clip, obs_clip)  # if normalize_obs
-    h = relu(x @ W_0 + b_0) ... ; out = h @ W_n + b_n ; action = tanh(out[..., :act_dim])
+    h = act(x @ W_0 + b_0) ... ; out = h @ W_n + b_n ; action = tanh(out[..., :act_dim])
 """
 
 from __future__ import annotations
@@ -26,6 +27,25 @@ from typing import Any
 import numpy as np
 
 EXPORT_FORMAT = 1
+
+# The hidden layers' activations a numpy policy applies, by the name an export records.
+ACTIVATIONS = {
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+    "elu": lambda x: np.where(x > 0, x, np.expm1(np.minimum(x, 0.0))),
+    "swish": lambda x: x / (1.0 + np.exp(-x)),
+    "identity": lambda x: x,
+}
+
+
+def dense_layers(mlp: dict[str, Any]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (kernel, bias) pairs of a flax MLP's parameters, in order (``Dense_0``, ``Dense_1``,
+    ...): the layers of a ``NumpyForm`` for an actor built from ``nn.Dense`` layers."""
+    names = sorted((n for n in mlp if n.startswith("Dense_")), key=lambda n: int(n[6:]))
+    if not names or len(names) != len(mlp):
+        raise ValueError(f"expected Dense_0 ... Dense_n layers, got {sorted(mlp)}")
+    return [(np.asarray(mlp[n]["kernel"], np.float32), np.asarray(mlp[n]["bias"], np.float32))
+            for n in names]  # fmt: skip
 
 
 class NumpyPolicy:
@@ -40,6 +60,11 @@ class NumpyPolicy:
         self.metadata = metadata
         self.act_dim = int(metadata["act_dim"])
         self.obs_dim = int(metadata["obs_dim"])
+        name = metadata.get("activation", "relu")
+        if name not in ACTIVATIONS:
+            raise ValueError(f"unknown activation {name!r}; this loader knows "
+                             f"{', '.join(ACTIVATIONS)}")  # fmt: skip
+        self.activation = ACTIVATIONS[name]
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Actions in [-1, 1] for one observation (obs_dim,) or a batch (..., obs_dim)."""
@@ -49,7 +74,7 @@ class NumpyPolicy:
         if self.metadata["normalize_obs"]:
             x = np.clip((x - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip)
         for kernel, bias in self.layers[:-1]:
-            x = np.maximum(x @ kernel + bias, 0.0)
+            x = self.activation(x @ kernel + bias)
         kernel, bias = self.layers[-1]
         return np.tanh((x @ kernel + bias)[..., : self.act_dim])
 

@@ -23,10 +23,11 @@ def reference_runs() -> dict[str, Any]:
 def matching_rows(config: Any) -> list[dict[str, Any]]:
     """Rows trained with this run's algorithm, environment, preset, length and reward
     normalization: alpha 0 and every alpha with this run's MA placement, by alpha."""
+    # The reference rows are SAC's; a run of another agent reads no sac group and matches none.
+    normalize_reward = config.to_dict().get(config.algo, {}).get("normalize_reward")
     rows = [r for r in reference_runs()["rows"]
             if (r["algo"], r["env"], r["preset"], r["total_steps"], r["normalize_reward"])
-            == (config.algo, config.env, config.preset, config.total_steps,
-                config.sac.normalize_reward)
+            == (config.algo, config.env, config.preset, config.total_steps, normalize_reward)
             and (r["alpha"] == 0 or r["placement"] == config.ma.placement)]  # fmt: skip
     return sorted(rows, key=lambda r: r["alpha"])
 

@@ -143,17 +143,42 @@ def copy_results(run_dir: str, target: str) -> None:
             write_bytes_atomic(os.path.join(target, name), f.read())
 
 
-def load_config(run_dir: str) -> TrainConfig:
-    """The (resolved) configuration a run directory was made with."""
+def read_config_json(run_dir: str) -> dict[str, Any]:
+    """A run directory's ``config.json`` as stored (no agent is looked up: ``inspect`` reads
+    any run with it); RunError when there is none or it is not JSON."""
+    check_run_dir(run_dir)
     path = os.path.join(run_dir, "config.json")
+    try:
+        with open(path) as f:
+            stored = json.load(f)
+    except (OSError, json.JSONDecodeError) as e:
+        raise RunError(f"{path} is not readable JSON ({e})") from None
+    if not isinstance(stored, dict) or "algo" not in stored:
+        raise RunError(f"{path} is not a minatt-jax configuration")
+    return stored
+
+
+def check_run_dir(run_dir: str) -> None:
+    """RunError unless ``run_dir`` is a directory holding a config.json."""
     if os.path.exists(run_dir) and not os.path.isdir(run_dir):
         raise RunError(f"{run_dir} is a file, not a run directory")
     if not os.path.isdir(run_dir):
         raise RunError(f"run directory {run_dir} does not exist")
-    if not os.path.exists(path):
+    if not os.path.exists(os.path.join(run_dir, "config.json")):
         raise RunError(f"{run_dir} has no config.json: not a minatt-jax run directory")
+
+
+def load_config(run_dir: str) -> TrainConfig:
+    """The (resolved) configuration a run directory was made with (its agent looked up: a
+    plugin's module as ``config.json`` records it)."""
+    check_run_dir(run_dir)
+    from minatt_jax.agents.registry import PluginError, UnknownAgentError
+
+    path = os.path.join(run_dir, "config.json")
     try:
         with open(path) as f:
             return resolve(TrainConfig.from_dict(json.load(f)))
+    except (UnknownAgentError, PluginError) as e:
+        raise RunError(f"{run_dir}: {e}") from None
     except (json.JSONDecodeError, TypeError, KeyError, ValueError) as e:
         raise RunError(f"{path} is corrupt or from an incompatible version ({e})") from None

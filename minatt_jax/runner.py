@@ -25,6 +25,7 @@ from minatt_jax import checkpoint, mujoco_engine, run_guard
 from minatt_jax.agents.base import config_field, hyper_values, with_hyper
 from minatt_jax.config import TrainConfig, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
+from minatt_jax.min_attention import PlacementError
 from minatt_jax.run_files import (  # noqa: F401 - re-exported: the runner's public API
     DivergedError,
     RunError,
@@ -223,7 +224,10 @@ def compiled_once(
         log(f"reusing the {what} compiled for an earlier run of this program")
     else:
         t0 = time.perf_counter()
-        compiled[key] = jitted.lower(args).compile()
+        try:
+            compiled[key] = jitted.lower(args).compile()
+        except PlacementError as e:  # raised while the agent's update is traced
+            raise RunError(str(e)) from None
         log(f"compiled the {what} in {time.perf_counter() - t0:.1f} s")
     return compiled[key]
 

@@ -17,6 +17,7 @@ the actor loss. MB-MPO's meta step replaces only the actor step (``maml``), reus
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -26,7 +27,7 @@ import optax
 from flax import struct
 
 from minatt_jax import min_attention as ma
-from minatt_jax.config import SACConfig
+from minatt_jax.fields import check, setting
 from minatt_jax.networks import (
     Actor,
     TwinCritic,
@@ -34,6 +35,39 @@ from minatt_jax.networks import (
     tanh_gaussian_log_prob,
 )
 from minatt_jax.replay import Transitions
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig:
+    """SAC settings (paper appendix): 256x256 ReLU, Adam 3e-4, gamma 0.99, tau 0.005.
+
+    ``normalize_reward``: the paper's "rewards were normalized during training", read as the
+    common running scale of the return (as gym's ``NormalizeReward`` / baselines'
+    ``VecNormalize``): every environment keeps its discounted return G <- gamma G + r (zeroed
+    when an episode ends), the running variance of G over all steps is tracked, and the rewards
+    of every SAC batch (real, imagined, adaptation) are divided by sqrt(var + 1e-8), not
+    shifted. MA's reward placement then subtracts its penalty from the scaled reward.
+    """
+
+    hidden: tuple[int, ...] = setting((256, 256), min_length=1, item={"kind": int, "ge": 1})
+    actor_lr: float = setting(3e-4, ge=0)
+    critic_lr: float = setting(3e-4, ge=0)
+    entropy_lr: float = setting(3e-4, ge=0)
+    gamma: float = setting(0.99, ge=0, lt=1)
+    tau: float = setting(0.005, gt=0, le=1)
+    batch_size: int = setting(256, ge=1)
+    init_entropy_coef: float = setting(1.0, gt=0)
+    target_entropy: float | None = setting(None, kind=float, optional=True)  # None = -act_dim
+    log_std_min: float = setting(-20.0)
+    log_std_max: float = setting(2.0)
+    normalize_obs: bool = setting(False, why="raw observations, as the paper")
+    normalize_reward: bool = setting(False, why="the reading study's best SAC arm ran without it")
+
+    def __post_init__(self) -> None:
+        check(self, "sac")
+        if not self.log_std_min < self.log_std_max:
+            raise ValueError(f"sac.log_std_min ({self.log_std_min}) must be below "
+                             f"sac.log_std_max ({self.log_std_max})")  # fmt: skip
 
 
 @struct.dataclass

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 
 import minatt_jax.envs as envs
+from minatt_jax import min_attention as ma
 from minatt_jax.agents import registry
 from minatt_jax.agents.base import Agent, check_hyper, hyper_values
 from minatt_jax.evaluation import EvalResult, make_evaluator
@@ -82,10 +83,11 @@ def make_train(config: Any) -> Trainer:
     """The training program of a resolved configuration (see the module docstring)."""
     if not config.is_resolved:
         raise ValueError("make_train needs a resolved configuration: call config.resolve first")
-    spec = registry.get(config.algo)
+    spec = registry.get(config.algo, config.agent_module)
     env = config.make_env()
     task_set = training_tasks(config, env)
-    agent = spec.make(config, env, task_set)
+    with ma.recording() as applied:
+        agent = spec.make(config, env, task_set)
     n = config.num_envs
 
     def iteration(state: Any, steps: jax.Array, members_axis: str | None) -> tuple[Any, dict]:
@@ -103,6 +105,8 @@ def make_train(config: Any) -> Trainer:
     def run_chunk(state: Any, start: jax.Array, members: bool) -> tuple[Any, dict]:
         state, metrics = scan_iterations(iteration, state, start, n, config.eval_every // n,
                                          members)  # fmt: skip
+        # Traced now: the agent's update has called its regularizer's hooks, or has not.
+        ma.check_applied(applied, config.ma, config.algo)
         return state, (jax.vmap(agent.summarize) if members else agent.summarize)(state, metrics)
 
     def init_state(key: jax.Array, hyper: dict) -> Any:

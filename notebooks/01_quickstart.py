@@ -86,8 +86,7 @@ trajectories = {}
 for ax, (alpha, run) in zip(axes[0], runs.items(), strict=True):
     policy = run.policy()
     env = policy.env
-    act = acting.deterministic(policy.agent.control, policy.actor_params, policy.normalizer,
-                               policy.config.sac.normalize_obs)  # fmt: skip
+    act = policy.acting_policy()  # the deterministic policy, its own normalization included
     steps = 100 if SMOKE else 300
     traj = jax.jit(lambda k, env=env, act=act, steps=steps: acting.unroll(
         env, act, env.reset(k), steps))(jax.random.PRNGKey(0))  # fmt: skip

@@ -47,7 +47,7 @@ def paths(tmp_path_factory):
 BIG = "99999999999999999999"
 CASES = [
     (["train", "--env", "hoppr"], "unknown environment 'hoppr'"),
-    (["train", "--algo", "ppo"], "unknown algorithm 'ppo'"),
+    (["train", "--algo", "td3"], "unknown algorithm 'td3'"),
     (["train", "--alpha=-1"], "expected a finite number >= 0"),
     (["train", "--alpha", "1e39"], "float32"),
     (["train", "--alpha", "nan"], "expected a finite number"),
@@ -66,7 +66,10 @@ CASES = [
     (["train", "--set", "sac.hidden="], "sac.hidden must be at least 1 value"),
     (["train", "--set", "sac.hidden=0"], "sac.hidden must be at least 1 value"),
     (["train", "--set", "sac.batch_size=0"], "sac.batch_size must be an integer >= 1"),
-    (["train", "--set", "mb.rollout_schedule=1,2"], "mb.rollout_schedule must be 4 values"),
+    (
+        ["train", "--algo", "mbpo", "--set", "mb.rollout_schedule=1,2"],
+        "mb.rollout_schedule must be 4 values",
+    ),
     (["train", "--set", "ma.alpha=nan"], "ma.alpha expects a finite number"),
     (["train", "--seeds", "", "--out", "{MISSING}"], "seeds is empty"),
     (["train", "--seeds", "0,0", "--out", "{MISSING}"], "seed 0 is given twice"),

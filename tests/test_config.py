@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import os
+
 import jax
 import numpy as np
 import pytest
@@ -25,6 +28,7 @@ def test_dotted_overrides_are_typed_from_the_annotations():
         PRESETS["smoke"],
         [
             "ma.alpha=0.5",
+            "algo=mbmpo",  # first, whatever its place: mb.* and model.* are mbmpo's settings
             "mb.meta_inner_lr=1e-3",
             "seed=7",
             "sac.normalize_obs=true",
@@ -40,9 +44,9 @@ def test_dotted_overrides_are_typed_from_the_annotations():
     assert c.mb.rollout_schedule == (0, 5, 1, 4) and c.model.num_elites is None
     assert c.ma.placement == "reward"
     # The keyword form for code sets the same fields.
-    assert with_overrides(PRESETS["smoke"], ma_alpha=0.5, mb_meta_inner_lr=1e-3).ma == (
-        apply_overrides(PRESETS["smoke"], ["ma.alpha=0.5"]).ma
-    )
+    assert with_overrides(
+        PRESETS["smoke"], algo="mbmpo", ma_alpha=0.5, mb_meta_inner_lr=1e-3
+    ).ma == (apply_overrides(PRESETS["smoke"], ["ma.alpha=0.5"]).ma)
 
 
 @pytest.mark.parametrize(
@@ -66,8 +70,11 @@ def test_bad_overrides_name_the_problem(override, message):
 
 def test_resolve_fills_every_derived_default_once():
     sac = resolve(PRESETS["cpu"])
-    assert (sac.task_set, sac.updates_per_step, sac.model.num_elites) == ("nominal", 1, 5)
-    assert sac.ma.temporal_dt == 1.0 and sac.is_resolved
+    assert (sac.task_set, sac.updates_per_step, sac.ma.placement) == ("nominal", 1, "entropy")
+    assert (
+        sac.ma.temporal_dt == 1.0 and sac.is_resolved and sac.group_names == ("ma", "caps", "sac")
+    )
+    assert resolve(with_overrides(PRESETS["cpu"], algo="mbpo")).model.num_elites == 5
     mbmpo = resolve(with_overrides(PRESETS["cpu"], algo="mbmpo", model_ensemble_size=3))
     assert (mbmpo.task_set, mbmpo.updates_per_step, mbmpo.model.num_elites) == ("train", 2, 3)
     assert resolve(mbmpo) == mbmpo  # idempotent
@@ -95,6 +102,64 @@ def test_config_json_round_trip_and_the_previous_format():
     assert TrainConfig.from_dict(old).ma.placement == "reward"
     old["ma"].pop("placement")
     assert TrainConfig.from_dict(old).ma.placement == "actor_loss"
+
+
+def test_the_format_in_which_every_run_held_every_group_still_loads():
+    """Before agents owned their settings every config.json held sac, model, mb and dreamer;
+    DreamerV3's and MAMBA's "entropy" placement applied MA in the actor loss alone; MAMBA's
+    four fields sat in the dreamer group. Such files read back as what ran."""
+    from minatt_jax.agents.mbpo import MBConfig
+    from minatt_jax.dreamer.config import DreamerConfig
+    from minatt_jax.dynamics_ensemble import ModelConfig
+    from minatt_jax.sac import SACConfig
+
+    legacy = {
+        "sac": dataclasses.asdict(SACConfig()),
+        "model": dataclasses.asdict(ModelConfig()),
+        "mb": dataclasses.asdict(MBConfig()),
+        "dreamer": dataclasses.asdict(DreamerConfig()),
+    }
+    sac = resolve(with_overrides(PRESETS["smoke"], ma_alpha=1.0))
+    read = TrainConfig.from_dict({**legacy, **sac.to_dict()})
+    assert read == sac and read.group_names == ("ma", "caps", "sac")
+    mamba = resolve(with_overrides(PRESETS["smoke"], algo="mamba", env="point_robot"))
+    old = {**legacy, **mamba.to_dict()}
+    old["dreamer"] = {**old["dreamer"], **old.pop("mamba")}
+    old["ma"]["placement"] = "entropy"
+    read = TrainConfig.from_dict(old)
+    assert read.mamba == mamba.mamba and read.dreamer == mamba.dreamer
+    assert read.ma.placement == "actor_loss"
+    dreamer = resolve(with_overrides(PRESETS["smoke"], algo="dreamer", ma_alpha=1.0))
+    old = {**legacy, **dreamer.to_dict()}
+    old["dreamer"] = {**old["dreamer"], "head_states": 0, "imag_starts": 0,
+                      "wm_horizon_start": 0, "wm_horizon_full_at": 0}  # fmt: skip
+    old["ma"]["placement"] = "entropy"
+    assert TrainConfig.from_dict(old) == dreamer
+    with pytest.raises(TypeError, match="unknown TrainConfig field or sac settings group 'td3'"):
+        TrainConfig.from_dict({**sac.to_dict(), "td3": {}})
+
+
+def test_every_committed_run_config_loads_with_its_values():
+    """The run directories kept under experiments/records (350 runs, written before agents
+    owned their settings) read back with every stored value unchanged."""
+    import glob
+    import json
+
+    from minatt_jax import run_files
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    paths = glob.glob(os.path.join(root, "experiments/records/**/config.json"), recursive=True)
+    assert len(paths) >= 300
+    for path in paths:
+        stored = json.load(open(path))
+        read = json.loads(json.dumps(run_files.load_config(os.path.dirname(path)).to_dict()))
+        for key, value in read.items():
+            if isinstance(value, dict):
+                assert {k: stored[key][k] for k in value if k in stored[key]} == {
+                    k: v for k, v in value.items() if k in stored[key]
+                }, (path, key)
+            elif key in stored and stored[key] is not None:
+                assert stored[key] == value, (path, key)
 
 
 def test_custom_tasks_combine_fields(make_env):
@@ -134,7 +199,8 @@ def test_bad_custom_tasks_name_the_problem(spec, message, make_env):
     [
         (["train", "--set", "ma.alpah=1"], "unknown setting 'ma.alpah'"),
         (["train", "--set", "ma.alpha=-1"], "ma.alpha must be a finite number >= 0"),
-        (["train", "--set", "mb.meta_inner=adam"], "meta_inner must be"),
+        (["train", "--algo", "mbmpo", "--set", "mb.meta_inner=adam"], "meta_inner must be"),
+        (["train", "--set", "mb.meta_inner=vpg"], "mb.* is a setting of --algo mbpo / mbmpo"),
         (["train", "--task", "mass=abc"], "mass must be a number"),
         (["train", "--task", "crippled=nojoint"], "no actuated joint"),
         (["rollout", "--env", "hopper", "--task", "weight=2"], "unknown field"),

@@ -14,34 +14,52 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from minatt_jax import api, fields
+from minatt_jax.agents import registry
 from minatt_jax.cli import main
-from minatt_jax.config import PRESETS, TrainConfig, apply_overrides, resolve
+from minatt_jax.config import PRESETS, TrainConfig, apply_overrides, resolve, with_overrides
 
 BASE = PRESETS["smoke"]
+# One smoke configuration per built-in agent: together they hold every built-in settings group.
+BASES = {algo: with_overrides(BASE, algo=algo, env="point_robot" if algo == "mamba" else None)
+         for algo in registry.BUILTIN}  # fmt: skip
+# Where a group's field is drawn: the first agent that owns the group.
+OWNER = {}
+for _algo, _config in BASES.items():
+    for _group in _config.group_names:
+        OWNER.setdefault(_group, _algo)
 
 
-def declared(cls: type = TrainConfig, prefix: str = "") -> list[tuple[str, fields.Rule]]:
-    """(dotted name, rule) of every field with a declared rule, nested groups included."""
-    out = []
-    for f in dataclasses.fields(cls):
-        rule = fields.rule_of(f)
-        if rule is not None:
-            out.append((prefix + f.name, rule))
-        elif dataclasses.is_dataclass(f.default):
-            out += declared(type(f.default), f"{f.name}.")
+def declared(config: TrainConfig) -> list[tuple[str, fields.Rule]]:
+    """(dotted name, rule) of every field of ``config`` with a declared rule, its groups'
+    included."""
+    out = [(f.name, fields.rule_of(f)) for f in dataclasses.fields(config)
+           if fields.rule_of(f) is not None]  # fmt: skip
+    for group in config.group_names:
+        out += [
+            (f"{group}.{f.name}", fields.rule_of(f))
+            for f in dataclasses.fields(getattr(config, group))
+            if fields.rule_of(f)
+        ]
     return out
 
 
-FIELDS = declared()
+FIELDS = sorted({item for algo, c in BASES.items() for item in declared(c)
+                 if "." not in item[0] or OWNER[item[0].split(".")[0]] == algo},
+                key=lambda item: item[0])  # fmt: skip
+
+
+def base_of(name: str) -> TrainConfig:
+    """The smoke configuration of the agent that owns the field ``name``."""
+    return BASES[OWNER[name.split(".")[0]]] if "." in name else BASE
 
 
 def test_every_group_declares_its_fields():
-    """Each nested group's every field has a rule (a field added without one fails here)."""
+    """Each group's every field has a rule (a field added without one fails here)."""
     names = {name for name, _ in FIELDS}
-    for f in dataclasses.fields(TrainConfig):
-        if dataclasses.is_dataclass(f.default):
-            for inner in dataclasses.fields(type(f.default)):
-                assert f"{f.name}.{inner.name}" in names, f"{f.name}.{inner.name} has no rule"
+    for config in BASES.values():
+        for group in config.group_names:
+            for inner in dataclasses.fields(getattr(config, group)):
+                assert f"{group}.{inner.name}" in names, f"{group}.{inner.name} has no rule"
     assert len(FIELDS) > 80
 
 
@@ -121,7 +139,7 @@ def test_each_field_accepts_its_values_and_refuses_the_rest_by_name(case):
     text = "none" if value is None else as_text(value)
     group = name.split(".")[0] + "." if "." in name else ""
     try:
-        config = resolve(apply_overrides(BASE, [f"{name}={text}"]))
+        config = resolve(apply_overrides(base_of(name), [f"{name}={text}"]))
     except ValueError as e:
         message = str(e)
         assert "\n" not in message
@@ -148,7 +166,9 @@ def test_the_cli_refuses_an_inadmissible_value_in_one_line(capsys_case):
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         try:
-            status = main(["train", "--preset", "smoke", "--set", f"{name}={as_text(value)}",
+            base = base_of(name)
+            status = main(["train", "--preset", "smoke", "--algo", base.algo, "--env", base.env,
+                           "--set", f"{name}={as_text(value)}",
                            "--out", "/nonexistent-minatt-jax/run"])  # fmt: skip
         except SystemExit as e:
             status = e.code
@@ -162,7 +182,9 @@ def test_the_cli_refuses_an_inadmissible_value_in_one_line(capsys_case):
 )
 def test_the_python_api_raises_the_same_message(field, value):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
-        api.make_config(preset="smoke", **{field.replace(".", "_"): value})
+        api.make_config(
+            preset="smoke", algo=OWNER[field.split(".")[0]], **{field.replace(".", "_"): value}
+        )
 
 
 def test_values_at_the_edges_of_their_rules_train_a_chunk(tmp_path):
@@ -220,7 +242,7 @@ def test_an_admissible_value_of_any_field_trains_a_smoke_chunk(tmp_path_factory,
         return
     text = "none" if value is None else as_text(value)
     try:
-        config = resolve(apply_overrides(BASE, [f"{name}={text}"]))
+        config = resolve(apply_overrides(base_of(name), [f"{name}={text}"]))
         config = resolve(apply_overrides(config, ["total_steps=300", "eval_every=300"]))
     except ValueError as e:
         assert "\n" not in str(e)

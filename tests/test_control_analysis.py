@@ -8,9 +8,9 @@ import numpy as np
 
 from minatt_jax import acting
 from minatt_jax.analysis import control_analysis as ca
-from minatt_jax.config import SACConfig, TrainConfig
+from minatt_jax.config import TrainConfig
 from minatt_jax.min_attention import MAConfig
-from minatt_jax.sac import make_sac
+from minatt_jax.sac import SACConfig, make_sac
 from minatt_jax.training import hyper_of
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from minatt_jax import imagination, replay
-from minatt_jax.config import MBConfig
+from minatt_jax.agents.mbpo import MBConfig
 from minatt_jax.dynamics_ensemble import Ensemble, EnsembleState, ModelConfig, Normalization
 from minatt_jax.envs import Hopper
 

@@ -20,8 +20,8 @@ from minatt_jax.dreamer.replay import SequenceReplay
 from minatt_jax.training import hyper_of
 
 TINY = DreamerConfig(deter=16, hidden=8, stoch=4, classes=3, blocks=2, units=16, layers=2,
-                     bins=31, batch_size=3, batch_length=12, imag_length=3, head_states=5,
-                     imag_starts=4)  # fmt: skip
+                     bins=31, batch_size=3, batch_length=12, imag_length=3)  # fmt: skip
+SUBSAMPLE = (5, 4)  # MAMBA's head states and imagination starts per sequence
 HYPER = {"alpha": jnp.float32(0.05), "ma_terms": jnp.ones(2)}
 
 
@@ -58,7 +58,7 @@ def test_replayed_sequences_start_where_meta_episodes_start():
 
 @pytest.fixture(scope="module")
 def agent():
-    return make_agent(5, 2, TINY, ma.MAConfig(alpha=0.05))
+    return make_agent(5, 2, TINY, ma.MAConfig(alpha=0.05), *SUBSAMPLE)
 
 
 def test_steps_past_the_horizon_change_nothing_in_an_update(agent):
@@ -91,8 +91,7 @@ def test_steps_past_the_horizon_change_nothing_in_an_update(agent):
 def test_masked_world_model_loss_reads_only_the_horizon_and_all_ones_is_dreamers_loss():
     """Without subsampling: a mask of ones gives DreamerV3's loss; under a 7-step prefix the
     loss does not depend on the steps after it and differs from the whole batch's."""
-    config = DreamerConfig(**{**TINY.__dict__, "head_states": 0, "imag_starts": 0})
-    agent = make_agent(5, 2, config, ma.MAConfig(alpha=0.0))
+    agent = make_agent(5, 2, TINY, ma.MAConfig(alpha=0.0))
     params = agent.init(jax.random.PRNGKey(0), HYPER).params["world_model"]
     batch = sequence_batch(jax.random.PRNGKey(1), 3, 12)
     key = jax.random.PRNGKey(4)
@@ -113,7 +112,9 @@ def test_ma_feedback_norms_match_finite_differences_on_meta_episode_observations
     from minatt_jax.envs.meta_episode import MetaEpisode
 
     env = MetaEpisode(make_env("point_robot"), 3, 10)
-    agent = make_agent(env.observation_size, env.action_size, TINY, ma.MAConfig(alpha=0.05))
+    agent = make_agent(
+        env.observation_size, env.action_size, TINY, ma.MAConfig(alpha=0.05), *SUBSAMPLE
+    )
     state = agent.init(jax.random.PRNGKey(0), HYPER)
     actor = jax.tree.map(lambda w: w + 0.3 * jax.random.normal(jax.random.PRNGKey(1), w.shape),
                          state.params["actor"])  # fmt: skip
@@ -136,7 +137,7 @@ def test_presets_set_meta_episodes_and_official_settings_under_the_users_overrid
 
     paper = resolve(preset_config("paper", fields={"algo": "mamba", "env": "humanoid_dir"}))
     assert (paper.meta_episodes, paper.max_episode_steps, paper.total_steps) == (2, 200, 30_000_000)
-    assert paper.dreamer.wm_horizon_start == 50 and paper.dreamer.wm_horizon_full_at == 15_000_000
+    assert paper.mamba.wm_horizon_start == 50 and paper.mamba.wm_horizon_full_at == 15_000_000
     assert paper.dreamer.train_ratio == 96.0 and paper.task_set == "train"
     halfcircle = preset_config("paper", fields={"algo": "mamba", "env": "point_robot"})
     assert (halfcircle.meta_episodes, halfcircle.max_episode_steps) == (3, 100)
@@ -145,7 +146,7 @@ def test_presets_set_meta_episodes_and_official_settings_under_the_users_overrid
     assert mine.meta_episodes == 4 and mine.max_episode_steps == mamba.CPU["max_episode_steps"]
     # other agents' presets are untouched
     dreamer = preset_config("cpu", fields={"algo": "dreamer", "env": "point_robot"})
-    assert dreamer.meta_episodes == 1 and dreamer.dreamer.head_states == 0
+    assert dreamer.meta_episodes == 1 and "mamba" not in dreamer.group_names
 
 
 def test_mamba_refuses_plain_episodes_and_a_replay_without_two_meta_episodes(capsys):

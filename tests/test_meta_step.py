@@ -7,11 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from minatt_jax.config import SACConfig
 from minatt_jax.maml import Trajectories, make_meta_step
 from minatt_jax.min_attention import MAConfig
 from minatt_jax.replay import Transitions
-from minatt_jax.sac import make_sac
+from minatt_jax.sac import SACConfig, make_sac
 
 OBS, ACT, TASKS, BATCH = 3, 2, 2, 6
 

@@ -67,8 +67,8 @@ def test_entropy_placement_charges_the_next_state_in_the_critic_target():
     """placement="entropy": the critic target loses gamma (1 - d) alpha penalty(s'), exactly the
     regularizer's per-state penalty at the next states; other placements leave the target alone."""
     from minatt_jax import min_attention as ma
-    from minatt_jax.config import SACConfig, TrainConfig
-    from minatt_jax.sac import make_sac
+    from minatt_jax.config import TrainConfig
+    from minatt_jax.sac import SACConfig, make_sac
     from minatt_jax.training import hyper_of
 
     key = jax.random.PRNGKey(0)

@@ -17,8 +17,8 @@ import minatt_jax
 from minatt_jax import acting, runner
 from minatt_jax import min_attention as ma
 from minatt_jax.analysis import control_analysis as ca
-from minatt_jax.config import PRESETS, SACConfig, TrainConfig, resolve, with_overrides
-from minatt_jax.sac import make_sac
+from minatt_jax.config import PRESETS, TrainConfig, resolve, with_overrides
+from minatt_jax.sac import SACConfig, make_sac
 from minatt_jax.training import hyper_of, make_train
 
 DATA = pathlib.Path(__file__).parent / "data"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import collections
-import dataclasses
 import json
 import os
 import shutil
@@ -18,16 +17,14 @@ import pytest
 from conftest import run_cli
 
 from minatt_jax import acting, checkpoint, runner
-from minatt_jax.config import PRESETS, SACConfig, resolve, with_overrides
+from minatt_jax.config import PRESETS, resolve, with_overrides
 from minatt_jax.evaluation import make_evaluator, summarize
 from minatt_jax.training import hyper_of, make_train, program_key
 
-LEARN = dataclasses.replace(
-    with_overrides(
-        PRESETS["smoke"], total_steps=6000, warmup_steps=1000, eval_every=2000,
-        max_episode_steps=200, buffer_size=10_000, eval_episodes=3,
-    ),
-    sac=SACConfig(hidden=(64, 64), batch_size=128),
+LEARN = with_overrides(
+    PRESETS["smoke"], total_steps=6000, warmup_steps=1000, eval_every=2000,
+    max_episode_steps=200, buffer_size=10_000, eval_episodes=3, sac_hidden=(64, 64),
+    sac_batch_size=128,
 )  # fmt: skip
 
 
@@ -172,8 +169,8 @@ def test_train_rejects_bad_values(capsys):
     for argv, message in [
         (["train", "--env", "ant"], "unknown environment"),
         (
-            ["train", "--algo", "ppo"],
-            "unknown algorithm 'ppo'; choose from sac, mbpo, mbmpo, dreamer",
+            ["train", "--algo", "td3"],
+            "unknown algorithm 'td3'; choose from sac, mbpo, mbmpo, dreamer",
         ),
         (["train", "--alpha=-1"], "expected a finite number >= 0"),
         (["train", "--variant", "moon"], "unknown variant"),

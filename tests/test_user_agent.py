@@ -10,6 +10,7 @@ library changed.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import jax
@@ -23,9 +24,24 @@ from minatt_jax import min_attention as ma
 from minatt_jax.agents import registry
 from minatt_jax.agents.base import Agent, PolicyFamily
 from minatt_jax.config import PRESETS, resolve, with_overrides
+from minatt_jax.fields import check, setting
 from minatt_jax.replay import Transitions
 
 SIGMA = 0.3  # exploration noise of the Gaussian policy
+
+
+@dataclasses.dataclass(frozen=True)
+class ToySettings:
+    """The toy agent's own settings (``--set toy.lr=...``).
+
+    Attributes:
+      lr: the policy's gradient step size.
+    """
+
+    lr: float = setting(1e-2, gt=0, le=10)
+
+    def __post_init__(self) -> None:
+        check(self, "toy")
 
 
 @struct.dataclass
@@ -76,7 +92,9 @@ def policy_family(config, env) -> PolicyFamily:
     )
 
 
-def make(config, env, task_set) -> Agent:
+def make(config, env, task_set, lazy: bool = False) -> Agent:
+    """The toy agent; ``lazy`` calls only the actor hook (an agent that drops the penalty under
+    the reward placement, which the training program refuses)."""
     n, obs_dim, act_dim = config.num_envs, env.observation_size, env.action_size
     regularizer = ma.make_regularizer(control, config.ma)
 
@@ -117,12 +135,27 @@ def make(config, env, task_set) -> Agent:
         def loss(params):
             mean = control(params, batch.obs)
             logp = -jnp.sum(jnp.square(batch.action - mean), -1) / (2 * SIGMA**2)
-            advantage = batch.reward - jnp.mean(batch.reward)
-            penalty, metrics = regularizer.actor_penalty(
-                params, batch.obs, batch.next_obs, (keys["update"], keys["update"]),
-                prev_params=learner.prev_params, update_step=learner.updates,
-                alpha=learner.hyper["alpha"], terms=learner.hyper["ma_terms"],
-            )  # fmt: skip
+            k = (keys["update"], keys["update"])
+            hyper = {"alpha": learner.hyper["alpha"], "terms": learner.hyper["ma_terms"]}
+            if lazy:
+                penalty, metrics = regularizer.actor_penalty(
+                    params, batch.obs, batch.next_obs, k, learner.prev_params, learner.updates,
+                    **hyper,
+                )  # fmt: skip
+                rewards = batch.reward
+            else:  # the one hook: every piece of MA for this batch, placed as configured
+                placed = regularizer.apply(
+                    params,
+                    batch.obs,
+                    batch.next_obs,
+                    batch.reward,
+                    k,
+                    learner.prev_params,
+                    learner.updates,
+                    **hyper,
+                )
+                penalty, rewards, metrics = placed.actor_penalty, placed.rewards, placed.metrics
+            advantage = rewards - jnp.mean(rewards)
             return -jnp.mean(logp * advantage) + penalty, metrics
 
         (value, metrics), grads = jax.value_and_grad(loss, has_aux=True)(learner.params)
@@ -135,7 +168,8 @@ def make(config, env, task_set) -> Agent:
         episodes = jnp.sum(per_iteration["episodes"])
         return {
             "loss": jnp.mean(per_iteration["loss"]),
-            "ma_penalty": jnp.mean(per_iteration["ma_penalty"]),
+            "ma_penalty": jnp.mean(per_iteration.get("ma_penalty", 0.0)),
+            "ma_reward_penalty": jnp.mean(per_iteration.get("ma_reward_penalty", 0.0)),
             "train_episode_return": jnp.sum(per_iteration["episode_return_sum"])
             / jnp.maximum(episodes, 1),
             "updates": jnp.asarray(per_iteration["loss"].shape[0], jnp.float32),
@@ -150,14 +184,19 @@ SPEC = registry.register(
         name="toy_reinforce",
         make=make,
         policy=policy_family,
-        # The step size is the learner's own field, swept like alpha: any config field works.
-        hyper={"alpha": "ma.alpha", "ma_terms": "ma.mode", "lr": "sac.actor_lr"},
+        # The step size is the agent's own setting, swept like alpha.
+        hyper={"alpha": "ma.alpha", "ma_terms": "ma.mode", "lr": "toy.lr"},
+        groups=(registry.SettingsGroup("toy", ToySettings),),
         defaults=lambda config: {"task_set": "nominal", "updates_per_step": 1},
     )
 )
 
+registry.register(
+    dataclasses.replace(SPEC, name="toy_lazy", make=lambda c, e, t: make(c, e, t, lazy=True))
+)
+
 BASE = with_overrides(PRESETS["smoke"], algo="toy_reinforce", total_steps=200, eval_every=100,
-                      warmup_steps=0, max_episode_steps=50, sac_actor_lr=1e-3)  # fmt: skip
+                      warmup_steps=0, max_episode_steps=50, toy_lr=1e-3)  # fmt: skip
 
 
 @pytest.mark.slow
@@ -184,3 +223,26 @@ def test_a_users_agent_trains_in_a_population_with_ma_and_resumes_exactly(tmp_pa
     assert result["step"] == 200 and np.isfinite(result["return"])
     assert result["feedback_norm"] == pytest.approx(whole[1]["feedback_norm"], rel=0.5)
     assert os.path.exists(tmp_path / "whole" / "population.json")
+
+
+@pytest.mark.slow
+def test_ma_is_applied_in_every_placement_the_agent_declares_and_refused_elsewhere(tmp_path):
+    """The toy agent calls the regularizer's one hook (``apply``): under the actor and reward
+    placements its training carries a nonzero penalty where MA is on; the entropy placement,
+    which it does not declare, is refused by ``resolve``; an agent that calls only the actor
+    hook is refused under the reward placement before it trains a step."""
+    base = with_overrides(BASE, env="point_robot_dense", total_steps=100, eval_every=100,
+                          ma_alpha=5.0)  # fmt: skip
+    for placement, metric in (("actor_loss", "ma_penalty"), ("reward", "ma_reward_penalty")):
+        config = resolve(with_overrides(base, ma_placement=placement))
+        record = runner.train(config, str(tmp_path / placement), log=lambda m: None)
+        assert record[metric] > 0, placement
+        off = runner.train(resolve(with_overrides(config, ma_alpha=0.0)),
+                           str(tmp_path / f"{placement}_off"), log=lambda m: None)  # fmt: skip
+        assert off[metric] == 0, placement
+    with pytest.raises(ValueError, match="toy_reinforce applies minimum attention in placement"):
+        resolve(with_overrides(base, ma_placement="entropy"))
+    lazy = resolve(with_overrides(base, algo="toy_lazy", ma_placement="reward"))
+    with pytest.raises(runner.RunError, match="never calls the regularizer's shape_rewards"):
+        runner.train(lazy, str(tmp_path / "lazy"), log=lambda m: None)
+    assert not os.path.exists(tmp_path / "lazy" / "metrics.jsonl")

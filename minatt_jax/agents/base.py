@@ -28,24 +28,59 @@ from minatt_jax import min_attention as ma
 from minatt_jax.agents.registry import AgentSpec
 
 
-class PolicyFamily(NamedTuple):
-    """How a saved policy acts, whatever trained it.
+class NumpyForm(NamedTuple):
+    """A feedforward policy as numpy arrays, for ``export`` (``minatt_jax.numpy_policy``):
 
+        x = clip((obs - obs_mean) / sqrt(obs_var + eps), -clip, clip)   # if normalize_obs
+        h = act(x @ W_0 + b_0) ... ; out = h @ W_n + b_n ; action = tanh(out[..., :act_dim])
+
+    ``layers``: (kernel (in, out), bias) pairs; ``activation``: the hidden layers' activation,
+    one of ``numpy_policy.ACTIVATIONS``; ``obs_mean``/``obs_var``: the normalizer (used when
+    ``normalize_obs``).
+    """
+
+    layers: list[tuple[np.ndarray, np.ndarray]]
+    activation: str
+    obs_mean: np.ndarray
+    obs_var: np.ndarray
+    normalize_obs: bool
+
+
+class PolicyFamily(NamedTuple):
+    """How a saved policy acts, whatever trained it; everything past training (evaluation on
+    MJX and the C engine, ``Policy.control``, export, analysis) asks the family, never the
+    agent's settings.
+
+    * ``agent``: the learner's functions, for the agent's own adapter (SAC: control, sample,
+      update; DreamerAgent); nothing outside the agent reads it;
     * ``like``: the (params, normalizer) templates of a policy snapshot (numpy zeros);
     * ``checkpoint_items`` / ``from_items``: the checkpoint items that hold the same policy, and
       how they assemble into (params, normalizer), for runs without a snapshot at a step;
     * ``deterministic(params, normalizer)`` (evaluation) and ``stochastic(params, normalizer)``
-      (data collection) as ``acting`` policies;
-    * ``control(params, x)``: the deterministic u(x) of a memoryless policy (None if recurrent).
+      (data collection) as ``acting`` policies: a feedforward one's ``prepare`` applies the
+      family's own observation normalization and its ``control`` is u(x);
+    * ``recurrent``: the policy carries memory (no u(obs) alone, no numpy export);
+    * ``export(params, normalizer) -> NumpyForm``: the policy in numpy, or None where the family
+      has no numpy form (export then refuses in one line).
     """
 
-    agent: Any  # the learner's functions (SAC: control, sample, ...; DreamerAgent)
+    agent: Any
     like: tuple[Any, Any]
     checkpoint_items: dict[str, Any]
     from_items: Callable[[dict[str, Any]], tuple[Any, Any]]
     deterministic: Callable[[Any, Any], acting.AnyPolicy]
     stochastic: Callable[[Any, Any], acting.AnyPolicy]
     recurrent: bool
+    export: Callable[[Any, Any], NumpyForm] | None = None
+
+    def control(self, params: Any, normalizer: Any) -> Callable[[jax.Array], jax.Array]:
+        """``obs -> u``: the deterministic control on raw observations (the family's own
+        normalization applied). ValueError for a recurrent policy: u depends on its memory."""
+        if self.recurrent:
+            raise ValueError("the policy is recurrent: u depends on its memory; act with its "
+                             "acting policy (acting.unroll runs it)")  # fmt: skip
+        policy = self.deterministic(params, normalizer)
+        return lambda obs: policy.control(policy.prepare(obs))
 
 
 class Agent(NamedTuple):
@@ -69,10 +104,14 @@ class Agent(NamedTuple):
 
 
 class Adapter(NamedTuple):
-    """What a meta-test does with new experience (``meta_test``).
+    """What a meta-test does with new experience (``meta_test``); an agent without one
+    (``AgentSpec.adapter`` None) is refused by meta-test in one line, and ``no_adaptation``
+    is the adapter of an agent that adapts by nothing (or in context).
 
-    * ``like``: the checkpoint items the adaptation reads (``checkpoint.restore_items``);
-      ``parts["agent"]`` is the learner that adapts;
+    * ``like``: the checkpoint items the adaptation reads (``checkpoint.restore_items``, by
+      their key paths, e.g. ``{"agent": template}``); the restored item ``parts["agent"]`` is the
+      learner that adapts, and its ``hyper`` subtree (if any) is where the meta-test sets the
+      adaptation's MA weight and inner step size (``--adapt-alpha``, ``--inner-lr``);
     * ``prepare(parts, normalizer, traj, key, refit) -> context``: once per task, from the
       collected episodes (``acting.Trajectory``, (shots, steps, ...)): a replay, a refitted model;
     * ``step(learner, context, key) -> learner``: one adaptation step (gradient updates, MAML
@@ -85,6 +124,18 @@ class Adapter(NamedTuple):
     step: Callable[[Any, Any, jax.Array], Any]
     policy_params: Callable[[Any], Any]
     parts: dict[str, Callable] = {}  # compiled pieces (a model refit), for tests and timings
+
+
+def no_adaptation(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapter:
+    """The adapter of an agent that does not adapt at meta-test time (or adapts in context):
+    the saved policy (its ``family.checkpoint_items``), unchanged by every step, so a meta-test
+    reports its evaluation on each new task. Name it as ``AgentSpec(adapter=no_adaptation)``."""
+    return Adapter(
+        like=family.checkpoint_items,
+        prepare=lambda parts, normalizer, traj, key, refit: None,
+        step=lambda learner, context, key: learner,
+        policy_params=lambda parts: family.from_items(parts)[0],
+    )
 
 
 def config_field(config: Any, dotted: str) -> Any:

@@ -39,6 +39,7 @@ from minatt_jax.agents.base import (
     zeros_like_shapes,
 )
 from minatt_jax.dreamer.agent import HYPER, AgentState, Batch, DreamerAgent, Latent, make_agent
+from minatt_jax.dreamer.config import DreamerConfig
 from minatt_jax.dreamer.replay import (
     SequenceReplay,
     episode_sequences,
@@ -115,9 +116,11 @@ def update_schedule(config: Any, length: int | None = None) -> tuple[int, int]:
     return 1, int(round(1.0 / per_iteration))
 
 
-def learner(config: Any, env: Any) -> DreamerAgent:
-    """The DreamerV3 learner of a (resolved) configuration for ``env``."""
-    return make_agent(env.observation_size, env.action_size, config.dreamer, config.ma)
+def learner(config: Any, env: Any, head_states: int = 0, imag_starts: int = 0) -> DreamerAgent:
+    """The DreamerV3 learner of a (resolved) configuration for ``env`` (``head_states`` and
+    ``imag_starts``: ``dreamer.agent.make_agent``'s subsampling, MAMBA's)."""
+    return make_agent(env.observation_size, env.action_size, config.dreamer, config.ma,
+                      head_states, imag_starts)  # fmt: skip
 
 
 def policy_family(config: Any, env: Any) -> PolicyFamily:
@@ -137,13 +140,20 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
     )
 
 
-def make(config: Any, env: Any, task_set: Any, source: SequenceSource | None = None) -> Agent:
+def make(
+    config: Any,
+    env: Any,
+    task_set: Any,
+    source: SequenceSource | None = None,
+    subsample: tuple[int, int] = (0, 0),
+) -> Agent:
     """The dreamer agent of a resolved configuration (see the module docstring); ``source``
-    (default ``windows(config)``) is what its updates replay, for agents built on it."""
+    (default ``windows(config)``) is what its updates replay and ``subsample`` the learner's
+    (head states, imagination starts), for agents built on it."""
     d = config.dreamer
     source = windows(config) if source is None else source
     obs_size, act_size, n = env.observation_size, env.action_size, config.num_envs
-    agent = learner(config, env)
+    agent = learner(config, env, *subsample)
     capacity = max(config.buffer_size // n, source.length)
     updates_per_iteration, iterations_per_update = update_schedule(config, source.length)
     iterations = config.eval_every // n
@@ -283,14 +293,50 @@ def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapt
                    policy_params=policy_params)  # fmt: skip
 
 
+# DreamerV3 at toy size in the smoke preset (the program's structure, in seconds); in the cpu
+# preset at a size a CPU trains in an hour (benchmarks/dreamer_update.py: the official size1m
+# with 16 x 64 batches runs 1.4 updates/s on a 2-core x86-64 CPU, a day per 100K steps at train
+# ratio 1024): half the recurrent state, sequences of 32, train ratio 256 (one update per 2 env
+# steps). Everything else is the official proprioceptive setting.
+DREAMER_SETTINGS = registry.SettingsGroup("dreamer", DreamerConfig, presets={
+    "smoke": {"deter": 32, "hidden": 16, "stoch": 4, "classes": 4, "blocks": 2, "units": 32,
+              "layers": 2, "bins": 41, "batch_size": 4, "batch_length": 16, "imag_length": 5,
+              "train_ratio": 64.0, "warmup": 10},
+    "cpu": {"deter": 256, "batch_length": 32, "train_ratio": 256.0},
+})  # fmt: skip
+# MA enters DreamerV3's actor loss; its critic's lambda-returns carry no entropy term, so the
+# SAC-like "entropy" placement has no second half here, and the reward placement is not wired.
+PLACEMENTS = ("actor_loss",)
+
+
+# Fields the dreamer group held before MAMBA owned them (0 in every DreamerV3 run).
+MAMBA_FIELDS = ("head_states", "imag_starts", "wm_horizon_start", "wm_horizon_full_at")
+
+
+def read_stored(stored: dict[str, Any]) -> dict[str, Any]:
+    """Runs written before the agent declared its placements recorded the default "entropy",
+    which applied MA in DreamerV3's actor loss alone: they read as "actor_loss". The dreamer
+    group's former MAMBA fields are dropped where they are 0 (MAMBA's reading moves them)."""
+    if stored.get("ma", {}).get("placement") == "entropy":
+        stored = {**stored, "ma": {**stored["ma"], "placement": "actor_loss"}}
+    group = stored.get("dreamer", {})
+    if stored.get("algo") == "dreamer" and any(group.get(k) == 0 for k in MAMBA_FIELDS):
+        stored = {**stored, "dreamer": {k: v for k, v in group.items()
+                                        if not (k in MAMBA_FIELDS and v == 0)}}  # fmt: skip
+    return stored
+
+
 SPEC = registry.register(
     registry.AgentSpec(
         name="dreamer",
         make=make,
         policy=policy_family,
         hyper=HYPER,
+        groups=(DREAMER_SETTINGS,),
         defaults=lambda config: {"task_set": "nominal", "updates_per_step": 1},
         adapter=adapter,
         recurrent=True,
+        placements=PLACEMENTS,
+        read_stored=read_stored,
     )
 )

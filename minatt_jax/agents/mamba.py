@@ -10,12 +10,12 @@ distributions, losses, collector, replay and MA regularizer it runs unchanged):
 
 * **whole meta-episodes are replayed**: each sequence starts where a meta-episode starts and
   is as long as one (``SequenceReplay.sample_starts``; ``dreamer.batch_length`` is not read);
-* **the world-model horizon grows**: the losses count the first ``dreamer.wm_horizon_start``
+* **the world-model horizon grows**: the losses count the first ``mamba.wm_horizon_start``
   steps of each sequence, a prefix growing linearly with the env steps to the whole
-  meta-episode at ``dreamer.wm_horizon_full_at`` (the recurrent state is still rolled over the
+  meta-episode at ``mamba.wm_horizon_full_at`` (the recurrent state is still rolled over the
   whole sequence; the steps past the horizon are masked out of the losses);
-* **subsampled states**: the prediction heads see ``dreamer.head_states`` states per sequence,
-  imagination starts from ``dreamer.imag_starts`` of them (long sequences, bounded cost);
+* **subsampled states**: the prediction heads see ``mamba.head_states`` states per sequence,
+  imagination starts from ``mamba.imag_starts`` of them (long sequences, bounded cost);
 * **meta-test** is in context: meta-episodes on new tasks with no gradient step; evaluation
   reports each inner episode's return (``return_episode_<i>``), the adaptation curve.
 
@@ -27,6 +27,7 @@ minutes, ``smoke`` seconds. ``DEVIATIONS`` lists what differs from the official 
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
@@ -35,6 +36,7 @@ import jax.numpy as jnp
 from minatt_jax.agents import dreamer, registry
 from minatt_jax.agents.base import Adapter, PolicyFamily, abstract_hyper, zeros_like_shapes
 from minatt_jax.dreamer.agent import HYPER
+from minatt_jax.fields import check, setting
 
 # What minatt-jax's MAMBA does differently from the official implementation (on top of
 # ``minatt_jax.dreamer.config.DEVIATIONS``), and why.
@@ -61,18 +63,18 @@ OFFICIAL = {
     "point_robot": {  # halfcircle
         "meta_episodes": 3, "max_episode_steps": 100, "total_steps": 2_000_000,
         "dreamer.train_ratio": 16.0, "dreamer.imag_length": 2,
-        "dreamer.wm_horizon_start": 300, "dreamer.wm_horizon_full_at": 0,
+        "mamba.wm_horizon_start": 300, "mamba.wm_horizon_full_at": 0,
     },
     "humanoid_dir": {  # humanoiddir
         "meta_episodes": 2, "max_episode_steps": 200, "total_steps": 30_000_000,
         "dreamer.train_ratio": 96.0, "dreamer.imag_length": 10,
-        "dreamer.wm_horizon_start": 50, "dreamer.wm_horizon_full_at": 15_000_000,
+        "mamba.wm_horizon_start": 50, "mamba.wm_horizon_full_at": 15_000_000,
     },
 }  # fmt: skip
 # Both official settings: 10 environments, batches of 16, 64 head states and 512 imagination
 # starts per sequence, MLPs of 2 x 128, deter 512, 16 x 16 categoricals.
-SHARED = {"num_envs": 10, "dreamer.batch_size": 16, "dreamer.head_states": 64,
-          "dreamer.imag_starts": 512, "dreamer.layers": 2, "dreamer.units": 128,
+SHARED = {"num_envs": 10, "dreamer.batch_size": 16, "mamba.head_states": 64,
+          "mamba.imag_starts": 512, "dreamer.layers": 2, "dreamer.units": 128,
           "dreamer.deter": 512, "dreamer.stoch": 16, "dreamer.classes": 16,
           "eval_every": 30_000, "warmup_steps": 7_500, "task_set": "train"}  # fmt: skip
 # A point-robot setting one CPU core trains in about 15 minutes (meta-episodes of 3 x 50 steps,
@@ -81,16 +83,56 @@ CPU = {
     "meta_episodes": 3, "max_episode_steps": 50, "total_steps": 60_000, "num_envs": 10,
     "eval_every": 15_000, "warmup_steps": 3_000, "task_set": "train",
     "dreamer.train_ratio": 128.0, "dreamer.imag_length": 10, "dreamer.batch_size": 8,
-    "dreamer.head_states": 32, "dreamer.imag_starts": 64, "dreamer.wm_horizon_start": 150,
+    "mamba.head_states": 32, "mamba.imag_starts": 64, "mamba.wm_horizon_start": 150,
     "dreamer.layers": 2, "dreamer.units": 64, "dreamer.deter": 128, "dreamer.hidden": 32,
     "dreamer.stoch": 8, "dreamer.classes": 8, "dreamer.blocks": 4, "dreamer.bins": 63,
     "dreamer.warmup": 100, "dreamer.lr": 1e-4,
 }  # fmt: skip
 SMOKE = {
     "meta_episodes": 2, "max_episode_steps": 20, "total_steps": 600, "eval_every": 300,
-    "warmup_steps": 160, "task_set": "train", "dreamer.head_states": 8,
-    "dreamer.imag_starts": 16, "dreamer.wm_horizon_start": 20, "dreamer.wm_horizon_full_at": 400,
+    "warmup_steps": 160, "task_set": "train", "mamba.head_states": 8,
+    "mamba.imag_starts": 16, "mamba.wm_horizon_start": 20, "mamba.wm_horizon_full_at": 400,
 }  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class MambaConfig:
+    """MAMBA's own settings (the ``mamba`` group), on top of DreamerV3's ``dreamer`` group.
+
+    Attributes:
+      head_states: the decoder, reward and continue losses on this many states drawn per
+        sequence (0: every state); the KL losses keep every state (MAMBA's
+        ``hidden_states_subsample``, for long sequences).
+      imag_starts: imagination starts from this many posterior states drawn per sequence (0:
+        every state; MAMBA's ``behavior_batch_length``).
+      wm_horizon_start: the world-model losses count the first ``wm_horizon_start`` steps of
+        each sequence (0: the whole sequence; MAMBA's ``initial_wm_horizon``).
+      wm_horizon_full_at: env steps at which that prefix has grown linearly to the whole
+        sequence (MAMBA's ``reach_wm_horizon_limit``).
+    """
+
+    head_states: int = setting(0, ge=0)
+    imag_starts: int = setting(0, ge=0)
+    wm_horizon_start: int = setting(0, ge=0)
+    wm_horizon_full_at: int = setting(0, ge=0)
+
+    def __post_init__(self) -> None:
+        check(self, "mamba")
+
+
+MAMBA_SETTINGS = registry.SettingsGroup("mamba", MambaConfig)
+
+
+def read_stored(stored: dict[str, Any]) -> dict[str, Any]:
+    """DreamerV3's reading (``agents.dreamer.read_stored``), and MAMBA's four fields, which
+    runs written before MAMBA owned its settings kept in the ``dreamer`` group."""
+    stored = dreamer.read_stored(stored)
+    fields = {f.name for f in dataclasses.fields(MambaConfig)}
+    if "mamba" not in stored and fields & set(stored.get("dreamer", {})):
+        kept = {k: v for k, v in stored["dreamer"].items() if k not in fields}
+        moved = {k: v for k, v in stored["dreamer"].items() if k in fields}
+        stored = {**stored, "dreamer": kept, "mamba": moved}
+    return stored
 
 
 def preset_settings(preset: str, env: str) -> dict[str, Any]:
@@ -124,13 +166,14 @@ def sequence_source(config: Any) -> dreamer.SequenceSource:
     return dreamer.SequenceSource(
         length=length,
         sample=lambda replay, key: replay.sample_starts(key, d.batch_size, length),
-        valid=horizon_mask(length, d.wm_horizon_start, d.wm_horizon_full_at),
+        valid=horizon_mask(length, config.mamba.wm_horizon_start, config.mamba.wm_horizon_full_at),
     )
 
 
 def make(config: Any, env: Any, task_set: Any) -> Any:
     """The mamba agent: DreamerV3's program replaying whole meta-episodes."""
-    return dreamer.make(config, env, task_set, sequence_source(config))
+    subsample = (config.mamba.head_states, config.mamba.imag_starts)
+    return dreamer.make(config, env, task_set, sequence_source(config), subsample)
 
 
 def defaults(config: Any) -> dict[str, Any]:
@@ -146,8 +189,8 @@ def defaults(config: Any) -> dict[str, Any]:
             f"mamba replays whole meta-episodes of {length} steps: buffer_size must hold at "
             f"least {2 * length} steps per environment ({2 * length * config.num_envs} in all)"
         )
-    if config.dreamer.wm_horizon_start > length:
-        raise ValueError(f"dreamer.wm_horizon_start ({config.dreamer.wm_horizon_start}) is "
+    if config.mamba.wm_horizon_start > length:
+        raise ValueError(f"mamba.wm_horizon_start ({config.mamba.wm_horizon_start}) is "
                          f"longer than a meta-episode ({length} steps)")  # fmt: skip
     return {"task_set": "train", "updates_per_step": 1}
 
@@ -175,9 +218,12 @@ SPEC = registry.register(
         make=make,
         policy=dreamer.policy_family,
         hyper=HYPER,
+        groups=(dreamer.DREAMER_SETTINGS, MAMBA_SETTINGS),
         defaults=defaults,
         adapter=adapter,
         recurrent=True,
         preset_settings=preset_settings,
+        placements=dreamer.PLACEMENTS,
+        read_stored=read_stored,
     )
 )

@@ -21,6 +21,7 @@ from minatt_jax import imagination, replay
 from minatt_jax.agents import registry
 from minatt_jax.agents.base import Adapter, Agent, PolicyFamily
 from minatt_jax.agents.mbpo import (
+    GROUPS,
     HYPER,
     KEYS,
     mixed_batch,
@@ -28,7 +29,7 @@ from minatt_jax.agents.mbpo import (
     model_based,
     model_based_defaults,
 )
-from minatt_jax.agents.sac import MetaState, TrainState, policy_family
+from minatt_jax.agents.sac import PLACEMENTS, MetaState, TrainState, policy_family
 from minatt_jax.maml import MetaStep, Trajectories, make_meta_step
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import SAC
@@ -118,8 +119,10 @@ SPEC = registry.register(
         make=make,
         policy=policy_family,
         hyper=HYPER,
+        groups=GROUPS,
         # Meta-training collects data across the training tasks.
         defaults=lambda config: {"task_set": "train", **model_based_defaults(config)},
         adapter=adapter,
+        placements=PLACEMENTS,
     )
 )

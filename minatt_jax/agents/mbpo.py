@@ -16,6 +16,7 @@ them, and in a population every member takes the same branch.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -27,6 +28,8 @@ from minatt_jax import normalizer as obs_norm
 from minatt_jax.agents import registry
 from minatt_jax.agents.base import Adapter, Agent, PolicyFamily, abstract_hyper
 from minatt_jax.agents.sac import (
+    PLACEMENTS,
+    SAC_SETTINGS,
     OffPolicy,
     TrainState,
     as_learned,
@@ -37,10 +40,84 @@ from minatt_jax.agents.sac import (
     off_policy,
     policy_family,
 )
-from minatt_jax.dynamics_ensemble import Ensemble, make_ensemble
+from minatt_jax.dynamics_ensemble import Ensemble, ModelConfig, make_ensemble
+from minatt_jax.fields import check, setting
 from minatt_jax.maml import MetaStep, Trajectories, make_meta_step
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import HYPER as SAC_HYPER
+
+
+@dataclasses.dataclass(frozen=True)
+class MBConfig:
+    """The model-based loop (mbpo, mbmpo): defaults are the paper's appendix / MBPO hopper values.
+
+    Attributes:
+      epoch_length: env steps per epoch (the rollout-length schedule counts epochs).
+      model_train_every: env steps between model fits (each followed by a rollout).
+      rollout_batch: start states per rollout (split evenly over the slots).
+      rollout_schedule: (start_epoch, end_epoch, min_len, max_len): the rollout length grows
+        linearly from min_len to max_len between the two epochs (official MBPO's and mbrl-lib's
+        hopper schedule, epochs 20 -> 150, length 1 -> 15; minatt-jax's earlier default ended at
+        epoch 100).
+      model_buffer_size: capacity of the imagined-transition buffer (all slots together).
+      real_ratio: fraction of each agent batch drawn from real data (the rest from the model).
+      obs_clip: imagined observations are clipped to [-obs_clip, obs_clip].
+      meta_inner_lr: beta of the MAML inner step theta' = theta - beta grad L_i(theta).
+      meta_first_order: drop the inner gradient's dependence on theta (first-order MAML).
+      meta_inner: inner-step objective, "sac" (the SAC actor loss) or "vpg" (REINFORCE on
+        imagined trajectories of ``vpg_horizon`` steps from ``task batch`` start states).
+      meta_outer: outer step, "sac" (Adam on the meta objective) or "trpo" (a trust-region step
+        on it with KL <= ``trpo_max_kl``).
+    """
+
+    epoch_length: int = setting(1000, ge=1)
+    model_train_every: int = setting(250, ge=1)
+    rollout_batch: int = setting(100_000, ge=1, why="MBPO's hopper value")
+    rollout_schedule: tuple[int, int, int, int] = setting(
+        (20, 150, 1, 15), length=4, item={"kind": int, "ge": 0}
+    )
+    model_buffer_size: int = setting(2_000_000, ge=1)
+    real_ratio: float = setting(0.05, ge=0, le=1)
+    obs_clip: float = setting(100.0, gt=0)
+    meta_inner_lr: float = setting(1e-3, ge=0, why="the paper appendix's beta")
+    meta_first_order: bool = setting(False, why="second-order MAML, as the paper")
+    meta_inner: str = setting("sac", choices=("sac", "vpg"), why="the paper's Algorithm 1")
+    vpg_horizon: int = setting(10, ge=1)
+    meta_outer: str = setting("sac", choices=("sac", "trpo"), why="the paper's Algorithm 1")
+    trpo_max_kl: float = setting(0.01, gt=0)
+
+    def __post_init__(self) -> None:
+        check(self, "mb")
+        start, end, lo, hi = self.rollout_schedule
+        if not (0 < lo <= hi and start <= end):
+            raise ValueError("mb.rollout_schedule must be (start_epoch, end_epoch, min_len, "
+                             "max_len) with start <= end and 0 < min <= max, got "
+                             f"{self.rollout_schedule}")  # fmt: skip
+
+    def rollout_length(self, epoch):
+        """The scheduled rollout length at ``epoch`` (works on ints and traced arrays)."""
+        start, end, lo, hi = self.rollout_schedule
+        frac = (epoch - start) / max(end - start, 1)
+        frac = frac * (frac > 0)
+        frac = frac - (frac - 1) * (frac > 1)
+        return (lo + frac * (hi - lo)) // 1
+
+
+# The model-based groups (mbpo and mbmpo own them with SAC's). The cpu preset caps model fits to
+# fit a CPU, and why (measured, benchmarks/meta_step.py): at most 10 "epochs" of at most 20
+# minibatches, warm-started from the last fit (one 7 x 4x200 minibatch takes 13-19 ms; full-data
+# epochs with early stopping take 20-40 s per fit, 1-2 h over the 180 fits of a 50K run).
+MODEL_SETTINGS = registry.SettingsGroup("model", ModelConfig, presets={
+    "smoke": {"ensemble_size": 3, "num_elites": 2, "hidden": (32, 32),
+              "weight_decay": (2.5e-5, 5e-5, 1e-4), "batch_size": 64, "max_holdout": 200,
+              "max_epochs": 3},
+    "cpu": {"max_epochs": 10, "max_batches_per_epoch": 20},
+})  # fmt: skip
+MB_SETTINGS = registry.SettingsGroup("mb", MBConfig, presets={
+    "smoke": {"epoch_length": 100, "model_train_every": 100, "rollout_batch": 64,
+              "rollout_schedule": (0, 2, 1, 3), "model_buffer_size": 2_000},
+})  # fmt: skip
+GROUPS = (SAC_SETTINGS, MODEL_SETTINGS, MB_SETTINGS)
 
 HYPER = {**SAC_HYPER, "inner_lr": "mb.meta_inner_lr"}  # inner_lr: the meta-test's inner step
 KEYS = ("act", "reset", "slot", "model", "update")
@@ -253,19 +330,20 @@ def adapter(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapt
 
 
 def model_based_defaults(config: Any) -> dict[str, Any]:
-    """Two agent updates per env step (the paper's appendix), and the buffer checks."""
+    """Two agent updates per env step (the paper's appendix), min(5, ensemble size) elites (as
+    MBPO), and the buffer checks."""
     slots = config.model.num_elites or min(5, config.model.ensemble_size)
     max_len = config.mb.rollout_schedule[3]
     if config.mb.rollout_batch < slots:
         raise ValueError(
-            f"mb rollout_batch ({config.mb.rollout_batch}) must be >= model num_elites ({slots})"
+            f"mb.rollout_batch ({config.mb.rollout_batch}) must be >= model.num_elites ({slots})"
         )
     if config.mb.rollout_batch // slots * max_len > config.mb.model_buffer_size // slots:
         raise ValueError(
-            f"mb model_buffer_size ({config.mb.model_buffer_size}) must hold one rollout: "
-            f">= rollout_batch x max rollout length = {config.mb.rollout_batch * max_len}"
+            f"mb.model_buffer_size ({config.mb.model_buffer_size}) must hold one rollout: "
+            f">= mb.rollout_batch x max rollout length = {config.mb.rollout_batch * max_len}"
         )
-    return {"updates_per_step": 2}
+    return {"updates_per_step": 2, "model.num_elites": slots}
 
 
 SPEC = registry.register(
@@ -274,7 +352,9 @@ SPEC = registry.register(
         make=make,
         policy=policy_family,
         hyper=HYPER,
+        groups=GROUPS,
         defaults=lambda config: {"task_set": "nominal", **model_based_defaults(config)},
         adapter=adapter,
+        placements=PLACEMENTS,
     )
 )

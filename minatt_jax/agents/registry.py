@@ -1,16 +1,28 @@
 """The registry of agents: ``--algo`` and ``minatt_jax.train(algo=...)`` read only this.
 
-An agent is registered as an :class:`AgentSpec` under its name. The built-in agents (sac, mbpo,
-mbmpo, dreamer) are found by module name and imported on first use, as plugin entry points are,
-so that the registry (and ``config``, which resolves a run's defaults through it) depends on no
-agent module. A user's agent registers itself with ``register(spec)`` (see ``docs/agents.md``).
+An agent is registered as an :class:`AgentSpec` under its name. Where an agent comes from, in the
+order ``get`` looks:
+
+1. agents registered in this process (``register(spec)``, as an agent module does when imported);
+2. the built-in agents (sac, mbpo, mbmpo, dreamer, mamba), imported on first use, so that the
+   registry (and ``config``, which resolves a run's defaults through it) imports no agent module;
+3. installed plugins: the entry points of group ``minatt_jax.agents`` (name = the algorithm, value
+   = the module that registers it), imported when their name is asked for;
+4. the module a run's ``config.json`` records (``TrainConfig.agent_module``), so every command
+   on a run finds its agent without being told;
+5. modules named by ``--plugin MODULE`` or ``MINATT_JAX_PLUGINS`` (``load_plugins``).
+
+Plugins load when a command asks for them, never at interpreter start. An agent owns its settings:
+``AgentSpec.groups`` declares each settings group (a frozen dataclass of ``fields.setting``
+fields) it reads, with the group's values per preset; ``docs/extending.md`` is the guide.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 # name -> the module that registers it when imported
@@ -21,10 +33,38 @@ BUILTIN = {
     "dreamer": "minatt_jax.agents.dreamer",
     "mamba": "minatt_jax.agents.mamba",
 }
+AGENT_ENTRY_POINTS = "minatt_jax.agents"
+ENV_ENTRY_POINTS = "minatt_jax.envs"
+PLUGINS_VARIABLE = "MINATT_JAX_PLUGINS"
 
 
 class UnknownAgentError(ValueError):
-    """An algorithm name that no agent is registered under."""
+    """An algorithm name that no agent is registered under (one line, naming what to do)."""
+
+
+class PluginError(ValueError):
+    """A plugin module that cannot be imported (one line, naming the module and the cause)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SettingsGroup:
+    """A group of settings an agent owns: ``--set <name>.<field>=...``, ``config.<name>``.
+
+    Attributes:
+      name: the group's name in dotted settings and in ``config.json`` (``"sac"``, ``"td3"``).
+      settings: a frozen dataclass whose fields are declared with ``fields.setting`` (default and
+        rule together) and whose ``__post_init__`` calls ``fields.check(self, name)``.
+      presets: ``{preset: {field: value}}``: the group's values in a preset (``smoke``, ``cpu``,
+        ``paper``); fields not named keep the dataclass default.
+    """
+
+    name: str
+    settings: type
+    presets: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def default(self, preset: str) -> Any:
+        """The group's settings in ``preset``."""
+        return self.settings(**self.presets.get(preset, {}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,44 +81,117 @@ class AgentSpec:
       hyper: ``{hyper name: config field}``: every value a population may sweep without
         recompiling, read by the losses from the state's ``hyper`` subtree. ``"ma_terms"`` (the
         MA mode's term weights) is derived from ``ma.mode`` when named here.
-      defaults: ``config -> {dotted field: value}``: the algorithm's derived defaults for fields
-        left at ``None`` (``config.resolve``), and its cross-field checks (ValueError).
+      groups: the settings groups the agent owns (``SettingsGroup``); a run's configuration
+        holds exactly these beside the common fields, ``ma`` and ``caps``.
+      defaults: ``config -> {dotted field: value}``: the algorithm's derived defaults, applied
+        by ``config.resolve`` to every named field left at ``None`` (a name that is no setting
+        is refused), and its cross-field checks (ValueError).
       adapter: ``(config, env, family, settings) -> agents.base.Adapter``: what a meta-test does
-        with new experience.
+        with new experience; None: the agent does not adapt (meta-test refuses it in one line).
       recurrent: the policy carries memory (export and the C-engine evaluation refuse it).
       preset_settings: ``(preset, env) -> {dotted field: value}``: what the agent sets in a
-        preset for an environment (MAMBA's meta-episodes and official settings), applied under
-        the user's overrides (``config.preset_config``).
+        preset for an environment (MAMBA's meta-episodes and official settings), applied
+        whenever a configuration switches to this agent, under the user's own values.
+      placements: the MA placements (``ma.placement``) the agent applies; ``config.resolve``
+        refuses others while MA is on. The first is its default.
+      read_stored: ``config.json``'s dict -> the dict in the current format: how the agent reads
+        runs its earlier versions wrote.
     """
 
     name: str
     make: Callable[..., Any]
     policy: Callable[..., Any]
     hyper: dict[str, str]
+    groups: tuple[SettingsGroup, ...] = ()
     defaults: Callable[[Any], dict[str, Any]] = lambda config: {}
     adapter: Callable[..., Any] | None = None
     recurrent: bool = False
     preset_settings: Callable[[str, str], dict[str, Any]] = lambda preset, env: {}
+    placements: tuple[str, ...] = ("actor_loss", "reward")
+    read_stored: Callable[[dict[str, Any]], dict[str, Any]] = lambda stored: stored
+
+    @property
+    def module(self) -> str:
+        """The module that defines the agent (recorded in a run's config.json)."""
+        return getattr(self.make, "__module__", "") or ""
+
+    def group(self, name: str) -> SettingsGroup | None:
+        """The agent's settings group ``name`` (None if it owns none of that name)."""
+        return next((g for g in self.groups if g.name == name), None)
 
 
 _SPECS: dict[str, AgentSpec] = {}
 
 
 def register(spec: AgentSpec) -> AgentSpec:
-    """Registers ``spec`` under its name (a later registration replaces an earlier one)."""
+    """Registers ``spec`` under its name (a later registration replaces an earlier one; a
+    configuration refuses a group named like a common setting)."""
     _SPECS[spec.name] = spec
     return spec
 
 
+def _entry_points(group: str) -> dict[str, Any]:
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=group)}
+
+
 def names() -> list[str]:
-    """Every algorithm name: the built-in ones and those registered since."""
-    return [*BUILTIN, *sorted(set(_SPECS) - set(BUILTIN))]
+    """Every algorithm name: the built-in ones, installed plugins and those registered since."""
+    extra = (set(_SPECS) | set(_entry_points(AGENT_ENTRY_POINTS))) - set(BUILTIN)
+    return [*BUILTIN, *sorted(extra)]
 
 
-def get(name: str) -> AgentSpec:
-    """The spec registered under ``name`` (UnknownAgentError, one line, when there is none)."""
+def import_plugin(module: str) -> None:
+    """Imports a plugin module (which registers its agents or environments); PluginError, one
+    line, when it cannot be imported."""
+    try:
+        importlib.import_module(module)
+    except ImportError as e:
+        raise PluginError(f"cannot import plugin module {module!r} ({e}); install it or put it "
+                          "on the Python path") from None  # fmt: skip
+
+
+def load_plugins(modules: Iterable[str] = ()) -> list[str]:
+    """Imports the plugin ``modules`` and those named (comma-separated) in the environment
+    variable ``MINATT_JAX_PLUGINS``; returns the modules imported."""
+    from_env = [m.strip() for m in os.environ.get(PLUGINS_VARIABLE, "").split(",")]
+    loaded = []
+    for module in [*modules, *from_env]:
+        if module and module not in loaded:
+            import_plugin(module)
+            loaded.append(module)
+    return loaded
+
+
+def load_env_plugins() -> None:
+    """Imports the environment plugins installed under entry-point group ``minatt_jax.envs``
+    (each registers its environments with ``minatt_jax.envs.register``)."""
+    for ep in _entry_points(ENV_ENTRY_POINTS).values():
+        import_plugin(ep.value.partition(":")[0])
+
+
+def get(name: str, module: str = "") -> AgentSpec:
+    """The spec registered under ``name``, looked up as the module docstring says; ``module``
+    is where a run recorded its agent came from. UnknownAgentError (one line) when none is."""
     if name not in _SPECS and name in BUILTIN:
         importlib.import_module(BUILTIN[name])
     if name not in _SPECS:
-        raise UnknownAgentError(f"unknown algorithm {name!r}; choose from {', '.join(names())}")
+        ep = _entry_points(AGENT_ENTRY_POINTS).get(name)
+        if ep is not None:
+            import_plugin(ep.value.partition(":")[0])
+    if name not in _SPECS and module:
+        try:
+            importlib.import_module(module)
+        except ImportError as e:
+            raise UnknownAgentError(
+                f"algorithm {name!r} comes from module {module!r}, which cannot be imported "
+                f"({e}): install it, or pass --plugin {module} with its folder on the Python path"
+            ) from None
+    if name not in _SPECS:
+        raise UnknownAgentError(
+            f"unknown algorithm {name!r}; choose from {', '.join(names())} (a plugin agent is "
+            f"loaded with --plugin MODULE, {PLUGINS_VARIABLE}, or an installed entry point in "
+            f"group {AGENT_ENTRY_POINTS})"
+        )
     return _SPECS[name]

@@ -31,13 +31,20 @@ from minatt_jax.agents import registry
 from minatt_jax.agents.base import (
     Adapter,
     Agent,
+    NumpyForm,
     PolicyFamily,
     abstract_hyper,
     zeros_like_shapes,
 )
 from minatt_jax.evaluation import deterministic_of
+from minatt_jax.numpy_policy import dense_layers
 from minatt_jax.replay import Transitions
-from minatt_jax.sac import HYPER, SAC, make_sac
+from minatt_jax.sac import HYPER, SAC, SACConfig, make_sac
+
+# The SAC settings group (sac, mbpo and mbmpo own it); the smoke preset's networks are small.
+SAC_SETTINGS = registry.SettingsGroup(
+    "sac", SACConfig, presets={"smoke": {"hidden": (32, 32), "batch_size": 64}}
+)
 
 
 @struct.dataclass
@@ -107,6 +114,13 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
     actor = zeros_like_shapes(shapes.actor_params)
     norm = obs_norm.init_normalizer(env.observation_size)
     normalize = config.sac.normalize_obs
+
+    def numpy_form(params: Any, norm: obs_norm.Normalizer) -> NumpyForm:
+        """The actor MLP (relu hidden layers; mean and log-std out) and the normalizer."""
+        return NumpyForm(dense_layers(params["params"]["MLP_0"]), "relu",
+                         jax.device_get(norm.mean), jax.device_get(norm.var),
+                         normalize)  # fmt: skip
+
     return PolicyFamily(
         agent=sac,
         like=(actor, norm),
@@ -115,6 +129,7 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
         deterministic=deterministic_of(sac.control, normalize),
         stochastic=lambda p, n: acting.stochastic(sac.sample, sac.control, p, n, normalize),
         recurrent=False,
+        export=numpy_form,
     )
 
 
@@ -387,13 +402,18 @@ def as_learned(b: Transitions, normalizer: Any, return_stats: Any, norm_on: bool
                      reward=obs_norm.scale_reward(return_stats, b.reward))  # fmt: skip
 
 
+# SAC applies MA in every placement; as SAC treats entropy by default (the reading study's choice).
+PLACEMENTS = ("entropy", "actor_loss", "reward")
+
 SPEC = registry.register(
     registry.AgentSpec(
         name="sac",
         make=make,
         policy=policy_family,
         hyper=HYPER,
+        groups=(SAC_SETTINGS,),
         defaults=lambda config: {"task_set": "nominal", "updates_per_step": 1},
         adapter=adapter,
+        placements=PLACEMENTS,
     )
 )

@@ -387,6 +387,26 @@ def check_inputs(run_dirs: list[str], out_dir: str) -> None:
         run_files.check_not_run_file(d, out_dir, example="report")
 
 
+@dataclasses.dataclass
+class Report:
+    """What ``compute_report`` computes and ``write_report`` writes: the runs by group, the
+    states each group's policies visit (with their feedback and feedforward terms), the
+    K(t)x + v(t) decompositions, the failure grids over (forward velocity, pitch rate), the
+    visited states at earlier training steps, and the tables (``tables.json``)."""
+
+    runs: list[Run]
+    groups: dict[str, list[Run]]
+    env: Any
+    settings: AnalyzeConfig
+    states: dict[str, dict[str, np.ndarray]]
+    decomposition: dict[str, dict[str, dict[str, np.ndarray]]]
+    grids: dict[str, np.ndarray]
+    forward_velocity: np.ndarray
+    pitch_rate: np.ndarray
+    maturation: dict[str, dict[int, dict[str, np.ndarray]]]
+    tables: dict[str, Any]
+
+
 def analyze(
     run_dirs: list[str],
     out_dir: str,
@@ -395,13 +415,20 @@ def analyze(
 ) -> dict[str, Any]:
     """Writes every figure, the tables and report.html for ``run_dirs`` into ``out_dir``."""
     check_inputs(run_dirs, out_dir)
+    report = compute_report(run_dirs, settings, log)
+    os.makedirs(out_dir, exist_ok=True)
+    return write_report(report, out_dir)
+
+
+def compute_report(
+    run_dirs: list[str], settings: AnalyzeConfig = AnalyzeConfig(), log: Callable = print
+) -> Report:
+    """Everything the report shows, computed from the runs' policies (nothing written)."""
     runs = load_runs(run_dirs)
-    env_name = runs[0].config.env
     try:
         envs.check_task_set_name(settings.perturbation)
     except envs.UnknownNameError as e:
         raise runner.RunError(str(e)) from None
-    os.makedirs(out_dir, exist_ok=True)
     groups: dict[str, list[Run]] = {}
     for r in runs:
         groups.setdefault(r.group, []).append(r)
@@ -457,29 +484,39 @@ def analyze(
             maturation[g][step] = v
 
     assert env is not None
-    figures = {}
-    heat = {}
-    for metric in ("feedback", "feedforward"):
-        path = os.path.join(out_dir, f"heatmap_{metric}.png")
-        heat[metric] = _heatmap_figure(groups, states, metric, env, settings.bins, path)
-        figures[f"heatmap_{metric}.png"] = f"{metric} heatmaps over the paper's projections"
-    profiles_figure(runs, os.path.join(out_dir, "profiles.png"))
-    figures["profiles.png"] = "return, feedback, feedforward and energy over training"
-    _decomposition_figure(decomposition, env.dt, os.path.join(out_dir, "decomposition.png"))
-    figures["decomposition.png"] = "||K(t)||_F and ||v(t)|| of u = K(t)x + v(t) along a rollout"
-    _failure_figure(grids, np.asarray(vx), np.asarray(w), env_name,
-                    os.path.join(out_dir, "failure_grid.png"))  # fmt: skip
-    figures["failure_grid.png"] = "failure rate over initial forward velocity x pitch rate"
-    runner.write_json_atomic(
-        os.path.join(out_dir, "failure_grid.json"),
-        {"forward_velocity": np.asarray(vx).tolist(), "pitch_rate": np.asarray(w).tolist(),
-         "failure_rate": {g: grids[g].tolist() for g in grids}},  # [vx index][pitch-rate index]
-    )  # fmt: skip
-    _maturation_figure(maturation, env, settings.bins, os.path.join(out_dir, "maturation.png"))
-    figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
     tables = aggregate_tables(runs)
     if adaptation:
         tables["in_context"] = in_context_rows(adaptation)
+    return Report(runs, groups, env, settings, states, decomposition, grids, np.asarray(vx),
+                  np.asarray(w), maturation, tables)  # fmt: skip
+
+
+def write_report(report: Report, out_dir: str) -> dict[str, Any]:
+    """Writes a computed report's figures, ``failure_grid.json``, ``tables.md``,
+    ``tables.json`` and ``report.html`` into ``out_dir``; returns what was written."""
+    runs, groups, env, settings = report.runs, report.groups, report.env, report.settings
+    grids, vx, w, tables = report.grids, report.forward_velocity, report.pitch_rate, report.tables
+    figures = {}
+    for metric in ("feedback", "feedforward"):
+        path = os.path.join(out_dir, f"heatmap_{metric}.png")
+        _heatmap_figure(groups, report.states, metric, env, settings.bins, path)
+        figures[f"heatmap_{metric}.png"] = f"{metric} heatmaps over the paper's projections"
+    profiles_figure(runs, os.path.join(out_dir, "profiles.png"))
+    figures["profiles.png"] = "return, feedback, feedforward and energy over training"
+    _decomposition_figure(report.decomposition, env.dt,
+                          os.path.join(out_dir, "decomposition.png"))  # fmt: skip
+    figures["decomposition.png"] = "||K(t)||_F and ||v(t)|| of u = K(t)x + v(t) along a rollout"
+    _failure_figure(grids, vx, w, runs[0].config.env, os.path.join(out_dir, "failure_grid.png"))
+    figures["failure_grid.png"] = "failure rate over initial forward velocity x pitch rate"
+    runner.write_json_atomic(
+        os.path.join(out_dir, "failure_grid.json"),
+        {"forward_velocity": vx.tolist(), "pitch_rate": w.tolist(),
+         "failure_rate": {g: grids[g].tolist() for g in grids}},  # [vx index][pitch-rate index]
+    )  # fmt: skip
+    _maturation_figure(report.maturation, env, settings.bins,
+                       os.path.join(out_dir, "maturation.png"))  # fmt: skip
+    figures["maturation.png"] = "feedback heatmap (first projection) at earlier training steps"
+    if "in_context" in tables:
         _adaptation_figure(tables["in_context"], os.path.join(out_dir, "adaptation.png"))
         figures["adaptation.png"] = (
             "return, feedback, feedforward and energy per inner "

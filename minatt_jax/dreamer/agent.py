@@ -141,10 +141,19 @@ def draw_states(
 
 
 def make_agent(
-    obs_size: int, action_size: int, config: DreamerConfig, ma_config: ma.MAConfig
+    obs_size: int,
+    action_size: int,
+    config: DreamerConfig,
+    ma_config: ma.MAConfig,
+    head_states: int = 0,
+    imag_starts: int = 0,
 ) -> DreamerAgent:
     """The DreamerV3 learner for ``obs_size`` observations and ``action_size`` actions in
-    [-1, 1], with the MA penalty of ``ma_config`` on the actor."""
+    [-1, 1], with the MA penalty of ``ma_config`` on the actor. For long sequences (MAMBA):
+    ``head_states`` > 0 trains the decoder, reward and continue heads on that many states drawn
+    per sequence (the KL losses keep every state; MAMBA's ``hidden_states_subsample``), and
+    ``imag_starts`` > 0 starts imagination from that many posterior states drawn per sequence
+    (MAMBA's ``behavior_batch_length``); 0: every state."""
     c = config
     wm = WorldModel(obs_size, c.deter, c.hidden, c.stoch, c.classes, c.blocks, c.units,
                     c.layers, c.bins)  # fmt: skip
@@ -259,8 +268,8 @@ def make_agent(
         feat = feature(latents.deter, latents.stoch)
         targets = (batch.obs, batch.reward, batch.cont)
         head_weight = valid
-        if c.head_states:
-            rows = draw_states(jax.random.fold_in(key, t), valid, b, t, c.head_states)
+        if head_states:
+            rows = draw_states(jax.random.fold_in(key, t), valid, b, t, head_states)
             feat, targets = jax.tree.map(rows, (feat, targets))
             head_weight = None  # every drawn state is valid
         obs, reward, cont = targets
@@ -269,7 +278,7 @@ def make_agent(
         rew = dist.twohot_loss(reward_logits, reward, bins)
         con = optax.sigmoid_binary_cross_entropy(cont_logit, cont)
         dyn, rep = dist.kl_balance(post, prior, c.free_nats)
-        if valid is None and not c.head_states:
+        if valid is None and not head_states:
             loss = jnp.mean(rec + rew + con + c.loss_dyn * dyn + c.loss_rep * rep)
         else:
             loss = (masked_mean(rec + rew + con, head_weight)
@@ -332,9 +341,9 @@ def make_agent(
             params["world_model"], batch, k_wm, valid
         )
         start_cont = batch.cont
-        if c.imag_starts:
+        if imag_starts:
             b, t = batch.reward.shape
-            rows = draw_states(jax.random.fold_in(k_img, 1), valid, b, t, c.imag_starts)
+            rows = draw_states(jax.random.fold_in(k_img, 1), valid, b, t, imag_starts)
             latents, start_cont = jax.tree.map(rows, (latents, start_cont))
         n = start_cont.size
         start = jax.tree.map(lambda x: sg(x.reshape(n, *x.shape[2:])), latents)

@@ -47,15 +47,6 @@ class DreamerConfig:
       lr, agc, eps, beta1, beta2, warmup: optimizer (one chain for all modules).
       batch_size, batch_length: replayed sequences per update and their length.
       train_ratio: replayed steps per environment step (1024: one update of 16 x 64 per step).
-      head_states: the decoder, reward and continue losses on this many states drawn per
-        sequence (0: every state); the KL losses keep every state (MAMBA's
-        ``hidden_states_subsample``, for long sequences).
-      imag_starts: imagination starts from this many posterior states drawn per sequence (0:
-        every state; MAMBA's ``behavior_batch_length``).
-      wm_horizon_start, wm_horizon_full_at: the world-model losses count the first
-        ``wm_horizon_start`` steps of each sequence, a prefix that grows linearly with the env
-        steps to the whole sequence at ``wm_horizon_full_at`` (0, 0: the whole sequence from the
-        start; MAMBA's ``initial_wm_horizon`` and ``reach_wm_horizon_limit``).
     """
 
     deter: int = setting(512, ge=1)
@@ -89,10 +80,6 @@ class DreamerConfig:
     batch_size: int = setting(16, ge=1)
     batch_length: int = setting(64, ge=2)
     train_ratio: float = setting(1024.0, gt=0)
-    head_states: int = setting(0, ge=0)
-    imag_starts: int = setting(0, ge=0)
-    wm_horizon_start: int = setting(0, ge=0)
-    wm_horizon_full_at: int = setting(0, ge=0)
 
     def __post_init__(self) -> None:
         check(self, "dreamer")
