@@ -2,5 +2,5 @@
 
 ``registry.get(name)`` returns an algorithm's ``AgentSpec`` (importing a built-in agent's module
 on first use; a plugin's through its entry point); ``registry.register(spec)`` adds a user's.
-Modules: ``sac``, ``mbpo``, ``mbmpo``, ``dreamer``, ``mamba``.
+Modules: ``sac``, ``ppo``, ``mbpo``, ``mbmpo``, ``dreamer``, ``mamba``.
 """

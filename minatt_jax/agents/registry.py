@@ -4,7 +4,7 @@ An agent is registered as an :class:`AgentSpec` under its name. Where an agent c
 order ``get`` looks:
 
 1. agents registered in this process (``register(spec)``, as an agent module does when imported);
-2. the built-in agents (sac, mbpo, mbmpo, dreamer, mamba), imported on first use, so that the
+2. the built-in agents (sac, mbpo, mbmpo, dreamer, mamba, ppo), imported on first use, so that the
    registry (and ``config``, which resolves a run's defaults through it) imports no agent module;
 3. installed plugins: the entry points of group ``minatt_jax.agents`` (name = the algorithm, value
    = the module that registers it), imported when their name is asked for;
@@ -32,6 +32,7 @@ BUILTIN = {
     "mbmpo": "minatt_jax.agents.mbmpo",
     "dreamer": "minatt_jax.agents.dreamer",
     "mamba": "minatt_jax.agents.mamba",
+    "ppo": "minatt_jax.agents.ppo",
 }
 AGENT_ENTRY_POINTS = "minatt_jax.agents"
 ENV_ENTRY_POINTS = "minatt_jax.envs"
