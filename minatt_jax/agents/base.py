@@ -46,6 +46,15 @@ class NumpyForm(NamedTuple):
     normalize_obs: bool
 
 
+def mlp_numpy_form(mlp: dict, activation: str, normalizer: Any, normalize: bool) -> NumpyForm:
+    """The ``NumpyForm`` of a flax MLP actor (its ``Dense_i`` parameters, the first
+    ``act_dim`` outputs the tanh's input) with the observation normalizer it acts behind."""
+    from minatt_jax.numpy_policy import dense_layers
+
+    return NumpyForm(dense_layers(mlp), activation, np.asarray(jax.device_get(normalizer.mean)),
+                     np.asarray(jax.device_get(normalizer.var)), normalize)  # fmt: skip
+
+
 class PolicyFamily(NamedTuple):
     """How a saved policy acts, whatever trained it; everything past training (evaluation on
     MJX and the C engine, ``Policy.control``, export, analysis) asks the family, never the

@@ -50,11 +50,11 @@ from minatt_jax.agents.base import (
     NumpyForm,
     PolicyFamily,
     abstract_hyper,
+    mlp_numpy_form,
     zeros_like_shapes,
 )
 from minatt_jax.fields import check, setting
 from minatt_jax.networks import ACTIVATIONS, MLP
-from minatt_jax.numpy_policy import dense_layers
 from minatt_jax.sac import with_learning_rate
 
 
@@ -327,9 +327,7 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
                                                           normalize).prepare)  # fmt: skip
 
     def numpy_form(params: Any, normalizer: Any) -> NumpyForm:
-        return NumpyForm(dense_layers(params["params"]), config.ppo.activation,
-                         jax.device_get(normalizer.mean), jax.device_get(normalizer.var),
-                         normalize)  # fmt: skip
+        return mlp_numpy_form(params["params"], config.ppo.activation, normalizer, normalize)
 
     return PolicyFamily(
         agent=lrn,

@@ -34,10 +34,10 @@ from minatt_jax.agents.base import (
     NumpyForm,
     PolicyFamily,
     abstract_hyper,
+    mlp_numpy_form,
     zeros_like_shapes,
 )
 from minatt_jax.evaluation import deterministic_of
-from minatt_jax.numpy_policy import dense_layers
 from minatt_jax.replay import Transitions
 from minatt_jax.sac import HYPER, SAC, SACConfig, make_sac
 
@@ -117,9 +117,7 @@ def policy_family(config: Any, env: Any) -> PolicyFamily:
 
     def numpy_form(params: Any, norm: obs_norm.Normalizer) -> NumpyForm:
         """The actor MLP (relu hidden layers; mean and log-std out) and the normalizer."""
-        return NumpyForm(dense_layers(params["params"]["MLP_0"]), "relu",
-                         jax.device_get(norm.mean), jax.device_get(norm.var),
-                         normalize)  # fmt: skip
+        return mlp_numpy_form(params["params"]["MLP_0"], "relu", norm, normalize)
 
     return PolicyFamily(
         agent=sac,
