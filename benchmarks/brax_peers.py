@@ -150,6 +150,27 @@ def ours(algo: str, seed: int, steps: int, fields: dict, episodes: int, out: str
                 o, jnp.float32))), episodes, seed)}  # fmt: skip
 
 
+def summary_rows(rows: dict[str, list[dict]]) -> list[dict]:
+    """One row per program: mean and spread over seeds of the rate and the returns."""
+    out = []
+    for name, runs in rows.items():
+        if not runs:
+            continue
+        rate = [r["env_steps_per_s"] for r in runs]
+        own = [r["return_own_env"] for r in runs]
+        c = [r["return_c_engine"]["mean"] for r in runs]
+        out.append({"program": name, "seeds": len(runs), "env_steps": runs[0]["env_steps"],
+                    "env_steps_per_s": float(np.mean(rate)),
+                    "env_steps_per_s_std": float(np.std(rate, ddof=1)) if len(rate) > 1 else 0.0,
+                    "return_own_env": float(np.mean(own)),
+                    "return_own_env_std": float(np.std(own, ddof=1)) if len(own) > 1 else 0.0,
+                    "return_c_engine": float(np.mean(c)),
+                    "return_c_engine_std": float(np.std(c, ddof=1)) if len(c) > 1 else 0.0,
+                    **({"feedback_norm": float(np.mean([r["feedback_norm"] for r in runs]))}
+                       if "feedback_norm" in runs[0] else {})})  # fmt: skip
+    return out
+
+
 PPO = {"num_envs": 16, "unroll_length": 5, "batch_size": 64, "minibatches": 8, "epochs": 4,
        "gamma": 0.97, "lr": 3e-4, "entropy_cost": 1e-2, "reward_scaling": 10.0}  # fmt: skip
 
@@ -164,7 +185,16 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=5, help="C-engine episodes per policy")
     parser.add_argument("--runs", default="runs/brax_peers")
     parser.add_argument("--skip", nargs="*", default=[], choices=("ppo", "sac", "ma"))
+    parser.add_argument("--summarize", metavar="JSON", default=None,
+                        help="rewrite the summary of an earlier result file and stop")  # fmt: skip
     args = parser.parse_args()
+    if args.summarize:
+        with open(args.summarize) as f:
+            result = json.load(f)
+        result["summary"] = summary_rows(result["rows"])
+        with open(args.summarize, "w") as f:
+            json.dump(result, f, indent=1)
+        return
     shim_device_put_replicated()
     ppo_fields = {"num_envs": PPO["num_envs"], "ppo_unroll_length": PPO["unroll_length"],
                   "ppo_batch_size": PPO["batch_size"], "ppo_minibatches": PPO["minibatches"],
@@ -192,8 +222,8 @@ def main() -> None:
     result = {"device": device, "cpu_count": os.cpu_count(), "jax": jax.__version__,
               "command": "python benchmarks/brax_peers.py " + " ".join(
                   f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
-                  for k, v in vars(args).items() if k not in ("runs", "skip")),
-              "ppo_settings": PPO, "alpha": args.alpha, "rows": rows,
+                  for k, v in vars(args).items() if k not in ("runs", "skip", "summarize")),
+              "ppo_settings": PPO, "alpha": args.alpha, "summary": summary_rows(rows), "rows": rows,
               "note": "brax ran with a jax.device_put_replicated shim (jax 0.10 removed it)",
               }  # fmt: skip
     os.makedirs(RESULTS, exist_ok=True)

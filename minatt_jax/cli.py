@@ -378,46 +378,20 @@ def _state_defaults(p_train: argparse.ArgumentParser) -> None:
 
 
 def _train_config(args: argparse.Namespace):
-    """The run's configuration: the preset (or the stored one, on resume), the ``--set``
-    overrides, then the alias flags, resolved (``config.resolve``)."""
-    import minatt_jax.envs as envs
+    """The run's configuration from the flags (``runner.command_config``)."""
     from minatt_jax import runner
-    from minatt_jax.config import apply_overrides, preset_config, replace_fields, resolve
 
     aliases = {key: getattr(args, dest) for dest, key in _TRAIN_FLAGS.items()
                if getattr(args, dest) is not None}  # fmt: skip
     if args.task:
         aliases["tasks"] = tuple(args.task)
-    if args.resume:
-        if args.out is None:
-            raise UserError("--resume needs --out RUN_DIR")
-        try:
-            base = runner.load_config(args.out)
-        except runner.RunError as e:
-            raise UserError(str(e)) from None
+    if args.resume and args.out is None:
+        raise UserError("--resume needs --out RUN_DIR")
     try:
-        if args.resume:
-            config = replace_fields(apply_overrides(base, args.set), aliases)
-        else:
-            config = preset_config(args.preset or "cpu", args.set, aliases)
-        if config.env not in envs.ENV_NAMES:
-            envs.make(config.env)  # raises UnknownNameError with the list of names
-        if config.task_set is not None:
-            envs.check_task_set_name(config.task_set)
-        config = resolve(config)
-        if config.tasks:
-            envs.resolve_tasks(envs.make(config.env, config.physics), config.task_set,
-                               config.tasks)  # fmt: skip
-    except (ValueError, envs.UnknownNameError) as e:
+        return runner.command_config(args.preset, args.set, aliases,
+                                     args.out if args.resume else None)  # fmt: skip
+    except runner.RunError as e:
         raise UserError(str(e)) from None
-    if args.resume and args.preset is not None and args.preset != base.preset:
-        # The other fields are checked by runner.train (only the length and data fields may
-        # change); a preset is a set of fields, so naming another one is refused here.
-        raise UserError(
-            f"{args.out} was made with preset {base.preset}; resume takes its settings from its "
-            "config.json (drop --preset)"
-        )
-    return config
 
 
 _PROCESS_FLAGS = ("coordinator", "num_processes", "process_id")

@@ -232,6 +232,40 @@ def compiled_once(
     return compiled[key]
 
 
+def command_config(
+    preset: str | None,
+    overrides: list[str] | tuple[str, ...],
+    fields: dict[str, Any],
+    resume_dir: str | None = None,
+) -> TrainConfig:
+    """A run's resolved configuration from a command's words: ``preset`` (default cpu), or the
+    stored configuration of ``resume_dir``, then the ``"group.field=value"`` ``overrides``, then
+    the dotted ``fields``; every environment, task set and task named is checked. RunError (one
+    line) for anything that does not fit."""
+    from minatt_jax.config import apply_overrides, preset_config
+
+    base = load_config(resume_dir) if resume_dir is not None else None
+    if base is not None and preset is not None and preset != base.preset:
+        # The other fields are checked by train (only the length and data fields may change);
+        # a preset is a set of fields, so naming another one is refused here.
+        raise RunError(f"{resume_dir} was made with preset {base.preset}; resume takes its "
+                       "settings from its config.json (drop --preset)")  # fmt: skip
+    try:
+        if base is not None:
+            config = replace_fields(apply_overrides(base, overrides), fields)
+        else:
+            config = preset_config(preset or "cpu", overrides, fields)
+        if config.task_set is not None:
+            envs.check_task_set_name(config.task_set)
+        config = resolve(config)
+        if config.tasks:
+            envs.resolve_tasks(envs.make(config.env, config.physics), config.task_set,
+                               config.tasks)  # fmt: skip
+    except (ValueError, envs.UnknownNameError) as e:
+        raise RunError(str(e)) from None
+    return config
+
+
 def _resume_hint(run_dir: str) -> str:
     return f"minatt-jax train --out {run_dir} --resume"
 
