@@ -124,6 +124,10 @@ def run_cli(argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, object
 # module. Unlisted modules count as quick. A stale figure only costs balance, never correctness.
 MODULE_SECONDS = {
     "test_population.py": 960,
+    "test_golden_runs.py": 480,
+    "test_plugin_example.py": 300,
+    "test_user_agent.py": 150,
+    "test_ppo.py": 150,
     "test_dreamer.py": 810,
     "test_meta_test.py": 690,
     "test_train_program.py": 580,
