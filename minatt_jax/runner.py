@@ -257,12 +257,16 @@ def command_config(
             config = preset_config(preset or "cpu", overrides, fields)
         if config.task_set is not None:
             envs.check_task_set_name(config.task_set)
-        config = resolve(config)
-        if config.tasks:
-            envs.resolve_tasks(envs.make(config.env, config.physics), config.task_set,
-                               config.tasks)  # fmt: skip
+        config = checked_tasks(resolve(config))
     except (ValueError, envs.UnknownNameError) as e:
         raise RunError(str(e)) from None
+    return config
+
+
+def checked_tasks(config: TrainConfig) -> TrainConfig:
+    """``config`` once its training tasks are readable for its environment (a task set the
+    environment holds, custom tasks it can apply); ValueError (one line) otherwise."""
+    envs.resolve_tasks(envs.make(config.env, config.physics), config.task_set, config.tasks)
     return config
 
 
@@ -285,7 +289,7 @@ def train(
     and the data fields (alpha, learning rates, inner step size), which never recompile.
     """
     try:
-        config = resolve(config)
+        config = checked_tasks(resolve(config))
     except ValueError as e:
         raise RunError(str(e)) from None
     try:

@@ -48,6 +48,7 @@ BIG = "99999999999999999999"
 CASES = [
     (["train", "--env", "hoppr"], "unknown environment 'hoppr'"),
     (["train", "--algo", "td3"], "unknown algorithm 'td3'"),
+    (["train", "--variant", "ood"], "hopper has no 'ood' task set"),
     (["train", "--alpha=-1"], "expected a finite number >= 0"),
     (["train", "--alpha", "1e39"], "float32"),
     (["train", "--alpha", "nan"], "expected a finite number"),
