@@ -509,6 +509,10 @@ def evaluate_run(
     except checkpoint.CheckpointError as e:
         raise RunError(str(e)) from None
     config, env = policy.config, policy.env
+    if episodes is not None and (isinstance(episodes, bool) or not isinstance(episodes, int)
+                                 or episodes < 1):  # fmt: skip
+        raise RunError(f"episodes must be a positive integer (or None: the run's "
+                       f"{config.eval_episodes}), got {episodes!r}")  # fmt: skip
     episodes = episodes or config.eval_episodes
     name = task_set_name or config.task_set
     try:

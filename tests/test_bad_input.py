@@ -168,3 +168,11 @@ def test_bad_input_is_one_line_and_exit_2(paths, argv, message, capsys):
     assert len(lines) == 1 and lines[0].startswith("minatt-jax: error:"), err
     assert message in lines[0]
     assert digest(paths["ROOT"]) == before  # nothing already written was changed
+
+
+@pytest.mark.parametrize("episodes", [0, -1, 2.5, True])
+def test_the_python_api_refuses_an_evaluation_of_no_episodes(paths, episodes):
+    from minatt_jax import api, runner
+
+    with pytest.raises(runner.RunError, match="episodes must be a positive integer"):
+        api.load_run(str(paths["RUN"])).evaluate(episodes=episodes)
