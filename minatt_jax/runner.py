@@ -316,6 +316,11 @@ def _train(
     if resume:
         stored = load_config(run_dir)
         _check_resumable(stored, config, run_dir)
+        latest = checkpoint.latest_step(run_dir)
+        if latest == config.planned_steps and stored.to_dict() != config.to_dict():
+            raise RunError(f"{run_dir} is already at its last step {latest}: no step would train "
+                           "with the changed settings; ask for more steps (--steps) to train "
+                           "with them")  # fmt: skip
         hyper = hyper_values(trainer.spec, config)
         state = trainer.init(jax.random.PRNGKey(config.seed), hyper)
         step, state = _restore_newest_intact(run_dir, state, log)

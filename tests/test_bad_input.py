@@ -92,6 +92,10 @@ CASES = [
     (["train", "--resume", "--out", "{RUN}", "--env", "walker2d"], "other settings (env"),
     (["train", "--resume", "--out", "{RUN}", "--preset", "paper"], "drop --preset"),
     (["train", "--resume", "--out", "{RUN}", "--steps", "100"], "already at step 600"),
+    (
+        ["train", "--resume", "--out", "{RUN}", "--steps", "600", "--set", "sac.actor_lr=1e-3"],
+        "already at its last",
+    ),
     (["train", "--resume", "--out", "{CORRUPT}"], "config.json"),
     # read before anything is written: the new alpha must not reach config.json
     (
