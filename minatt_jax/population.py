@@ -143,7 +143,10 @@ def member_name(config: TrainConfig, swept: list[str]) -> str:
     parts = [config.algo]
     for key in swept:
         value = config_field(config, key)
-        text = f"{value:g}" if isinstance(value, float) else str(value).replace(" ", "")
+        if isinstance(value, float):  # the short form, unless it would merge two values
+            text = f"{value:g}" if float(f"{value:g}") == value else repr(value)
+        else:
+            text = str(value).replace(" ", "")
         parts.append(f"{key.split('.')[-1]}{text}")
     parts.append(f"seed{config.seed}")
     return "_".join(parts)

@@ -33,6 +33,10 @@ def test_members_and_groups():
     assert [len(g) for g in population.groups(shapes)] == [4, 4]  # a shape field: two programs
     names = {population.member_name(m, ["sac.hidden", "ma.alpha"]) for m in shapes}
     assert "sac_hidden(64,64)_alpha1_seed1" in names and len(names) == 8
+    # Values that print alike at 6 digits keep their own names (and directories).
+    close = population.expand(ONE_CHUNK, [0], ["ma.alpha=0.1234567,0.1234568,0.05"])
+    names = [population.member_name(m, ["ma.alpha"]) for m in close]
+    assert names == ["sac_alpha0.1234567_seed0", "sac_alpha0.1234568_seed0", "sac_alpha0.05_seed0"]
     assert population.parse_seeds("0-3,7") == [0, 1, 2, 3, 7]
     for bad in ("a-b", "3-1", "-1", "", "0-3,7,2", "1,1"):  # a repeated seed would be lost
         with pytest.raises(ValueError, match="seed"):
