@@ -137,18 +137,20 @@ def train(
 def train_population(
     config: TrainConfig | None = None,
     *,
-    seeds: Sequence[int] = (0,),
+    seeds: Sequence[int] | str = (0,),
     sweep: Sequence[str] = (),
     out: str,
     resume: bool = False,
     log: Callable[[str], None] | None = None,
     **fields: Any,
 ) -> list[Run]:
-    """Trains seeds x swept values in one program per group (``population``); one Run each."""
+    """Trains seeds x swept values in one program per group (``population``); one Run each.
+    ``seeds``: integers, or the command line's form ("0-4,7")."""
     from minatt_jax import population
 
     config = resolve(config) if config is not None else make_config(**fields)
-    members = population.expand(config, list(seeds), list(sweep))
+    seeds = population.parse_seeds(seeds) if isinstance(seeds, str) else list(seeds)
+    members = population.expand(config, seeds, list(sweep))
     swept = [s.partition("=")[0].strip() for s in sweep]
     population.train_population(members, out, swept, resume=resume, log=log or progress_logger())
     return [Run(os.path.join(out, population.member_name(m, swept))) for m in members]
