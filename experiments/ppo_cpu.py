@@ -1,0 +1,137 @@
+"""PPO with and without minimum attention on one CPU core: seeds x alphas as one population.
+
+    python experiments/ppo_cpu.py --env hopper --seeds 0-4 --alphas 0 0.05 --steps 1024000
+
+Every member is the ``cpu`` preset's PPO (brax's published settings, 32 environments, 10,240 env
+steps per update) at its seed and alpha; the population trains as one program under ``--runs``
+(resumable: run the same command again). The final deterministic evaluation of each member on
+minatt-jax's MJX environment and in Gymnasium's v5 environment on the MuJoCo C engine, per arm
+the mean with a 95% t interval over seeds, each MA arm against alpha 0 (Welch's interval of the
+difference and the exact permutation p), and the learning curves go to
+``experiments/results/ppo_cpu_<env>.{json,md,png}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+import stats
+import study
+from scipy import stats as scipy_stats
+
+from minatt_jax import population, runner
+from minatt_jax.config import PRESETS, resolve, with_overrides
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+METRICS = ("return", "feedback_norm", "energy", "feedforward_norm")
+
+
+def t_interval(values: list[float], level: float = 0.95) -> list[float]:
+    """The t interval of the mean over seeds (n - 1 degrees of freedom)."""
+    x = np.asarray(values, float)
+    if len(x) < 2:
+        return [float(x.mean())] * 2
+    half = scipy_stats.t.ppf(0.5 + level / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
+    return [float(x.mean() - half), float(x.mean() + half)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="hopper")
+    parser.add_argument("--seeds", default="0-4")
+    parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.05])
+    parser.add_argument("--steps", type=int, default=1_024_000)
+    parser.add_argument("--episodes", type=int, default=5, help="C-engine episodes per member")
+    parser.add_argument("--runs", default="runs/ppo_cpu")
+    args = parser.parse_args()
+    base = with_overrides(PRESETS["cpu"], algo="ppo", env=args.env, total_steps=args.steps)
+    sweep = [f"ma.alpha={','.join(f'{a:g}' for a in args.alphas)}"]
+    members = population.expand(resolve(base), population.parse_seeds(args.seeds), sweep)
+    out = os.path.join(args.runs, args.env)
+    resume = os.path.exists(os.path.join(out, "population.json"))
+    if resume:
+        members, _ = population.stored_members(out, args.steps)
+    done = resume and all(
+        (runner.read_metrics(os.path.join(out, population.member_name(m, ["ma.alpha"]))) or
+         [{"step": 0}])[-1]["step"] >= m.planned_steps for m in members
+    )  # fmt: skip
+    if not done:  # a finished population is only read again
+        population.train_population(members, out, ["ma.alpha"], resume=resume,
+                                    log=lambda m: print(m, flush=True))  # fmt: skip
+    arms: dict[str, dict] = {}
+    for m in members:
+        run_dir = os.path.join(out, population.member_name(m, ["ma.alpha"]))
+        record = runner.read_metrics(run_dir)[-1]
+        c_engine = runner.evaluate_run(run_dir, None, args.episodes, engine="mujoco")
+        arm = arms.setdefault(f"{m.ma.alpha:g}", {"seeds": [], "curves": [], "c_engine": {}})
+        arm["seeds"].append({"seed": m.seed, **{k: record[k] for k in METRICS}})
+        arm["curves"].append([r["return"] for r in runner.read_metrics(run_dir)])
+        for k in METRICS:
+            arm["c_engine"].setdefault(k, []).append(c_engine[k])
+    steps = [r["step"] for r in runner.read_metrics(run_dir)]
+    rows = []
+    for alpha, arm in arms.items():
+        row: dict = {"env": args.env, "alpha": float(alpha), "placement": "", "step": steps[-1]}
+        for k in METRICS:
+            values = [s[k] for s in arm["seeds"]]
+            row[k] = {"mean": float(np.mean(values)), "std": float(np.std(values, ddof=1)),
+                      "n": len(values), "ci": t_interval(values), "values": values}  # fmt: skip
+            row[f"c_engine_{k}"] = {"mean": float(np.mean(arm["c_engine"][k])),
+                                    "ci": t_interval(arm["c_engine"][k])}  # fmt: skip
+        if alpha != "0" and "0" in arms:
+            for k in METRICS:
+                a, b = row[k]["values"], [s[k] for s in arms["0"]["seeds"]]
+                row[f"{k}_vs_alpha0"] = {"welch_ci": list(stats.welch_ci(a, b)),
+                                         "permutation_p": stats.permutation_p(a, b)}  # fmt: skip
+        rows.append(row)
+    command = (f"python experiments/ppo_cpu.py --env {args.env} --seeds {args.seeds} --alphas "
+               f"{' '.join(f'{a:g}' for a in args.alphas)} --steps {args.steps}")  # fmt: skip
+    result = {**study.provenance(command), "env": args.env, "steps": steps, "arms": rows,
+              "curves": {a: arm["curves"] for a, arm in arms.items()}}  # fmt: skip
+    lines = [f"# PPO on {args.env}, {steps[-1]:,} env steps, seeds {args.seeds}", "",
+             f"`{command}` on {result['device']}.", "",
+             "Mean over seeds [95% t interval]; C engine: Gymnasium's v5 environment on the "
+             "MuJoCo C engine.", "", "| alpha | " + " | ".join(METRICS) + " | C-engine return |",
+             "|---|" + "---|" * (len(METRICS) + 1)]  # fmt: skip
+    for row in rows:
+        cells = [f"{row[k]['mean']:.4g} [{row[k]['ci'][0]:.4g}, {row[k]['ci'][1]:.4g}]"
+                 for k in (*METRICS, "c_engine_return")]  # fmt: skip
+        lines.append(f"| {row['alpha']:g} | " + " | ".join(cells) + " |")
+    for row in rows:
+        for k in METRICS:
+            if f"{k}_vs_alpha0" in row:
+                d = row[f"{k}_vs_alpha0"]
+                low, high = d["welch_ci"]
+                lines.append(f"- alpha {row['alpha']:g} - alpha 0, {k}: Welch 95% [{low:.4g}, "
+                             f"{high:.4g}], permutation p {d['permutation_p']:.3g}")  # fmt: skip
+    study.write_study(RESULTS, f"ppo_cpu_{args.env}", result, "\n".join(lines) + "\n")
+    _figure(result, os.path.join(RESULTS, f"ppo_cpu_{args.env}.png"))
+    print("\n".join(lines))
+
+
+def _figure(result: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6), layout="constrained")
+    steps = np.asarray(result["steps"])
+    for alpha, curves in result["curves"].items():
+        values = np.asarray(curves, float)
+        mean = values.mean(0)
+        ci = np.asarray([t_interval(list(values[:, i])) for i in range(values.shape[1])])
+        ax.plot(steps, mean, marker="o", ms=3, label=f"alpha {alpha} (n={len(values)})")
+        ax.fill_between(steps, ci[:, 0], ci[:, 1], alpha=0.2)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("return (deterministic evaluation)")
+    ax.set_title(f"PPO on {result['env']}: mean and 95% t interval over seeds", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()
