@@ -85,6 +85,9 @@ class LocomotionEnv(Env, abc.ABC):
     # qvel indices of forward velocity and torso pitch rate (planar root: x, z, pitch).
     failure_qvel_indices: tuple[int, int] = (0, 2)
     crippled_joints: tuple[tuple[str, ...], ...] = ()
+    # Custom-task fields (``mass``, ``friction``, ``gravity``, ``slope``) the dynamics never read:
+    # a task naming one, and the task set that varies it, are refused rather than run unchanged.
+    ignored_task_fields: tuple[str, ...] = ()
     # Meta-RL environments whose tasks carry a target (``Task.target``): its nominal value;
     # None for the others, whose tasks have none.
     default_target: float | None = None

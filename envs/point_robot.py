@@ -10,7 +10,8 @@ of the goal, 0 elsewhere (the reference's ``goal_radius`` 2 / 10). Episodes neve
 Task sets: ``train`` holds 16 goals over the upper half circle [0, pi] (the reference draws them
 uniformly there), ``ood`` 6 goals on the lower half (pi, 2 pi), ``nominal`` the goal at angle
 pi / 2. The crippled set zeroes one axis's motion (``Task.actuator_scale``); mass, friction,
-gravity and slope do not move a point that is stepped without physics.
+gravity and slope do not move a point that is stepped without physics, so tasks naming them and
+the mass and slope sets are refused (``ignored_task_fields``).
 
 ``point_robot_dense`` (:class:`DensePointRobot`) is the same task with the dense reward of the
 reference's ``PointEnv`` (the base of its sparse one): minus the distance to the goal at every
@@ -51,6 +52,7 @@ class PointRobot(LocomotionEnv):
     failure_grid_ranges = ((-0.5, 0.5), (-0.5, 0.5))
     failure_qvel_indices = (0, 1)
     crippled_joints = (("slide_x",), ("slide_y",))
+    ignored_task_fields = ("mass", "friction", "gravity", "slope")  # no physics moves the point
 
     def observation(self, data: mjx.Data) -> jax.Array:
         return data.qpos

@@ -38,11 +38,23 @@ class TaskSpecError(ValueError):
     """A custom task specification that cannot be read (a user-facing error)."""
 
 
+# The custom-task field each perturbation set varies.
+SET_FIELDS = {"mass": "mass", "slope": "slope"}
+
+
+def _ignores(env: LocomotionEnv, field: str) -> bool:
+    return field in getattr(env, "ignored_task_fields", ())
+
+
 def task_list(env: LocomotionEnv, set_name: str) -> tuple[list[Task], list[str]]:
     """The tasks of ``set_name`` for ``env`` and a short label for each."""
     own = env.target_tasks(set_name)
     if own is not None:
         return own
+    field = SET_FIELDS.get(set_name)
+    if field is not None and _ignores(env, field):
+        raise TaskSpecError(f"{env.name} has no {set_name!r} task set: its dynamics ignore "
+                            f"{field}, so every task would be the nominal one")  # fmt: skip
     if set_name in TARGET_SET_NAMES:
         raise TaskSpecError(f"{env.name} has no {set_name!r} task set: it holds the targets of a "
                             "meta-RL environment (humanoid_dir)")  # fmt: skip
@@ -97,6 +109,9 @@ def parse_task(env: LocomotionEnv, spec: str) -> tuple[Task, str]:
             )
         if TASK_FIELDS[name] in fields:
             raise TaskSpecError(f"task {spec!r}: field {name!r} given twice")
+        if _ignores(env, name):
+            raise TaskSpecError(f"task {spec!r}: {env.name}'s dynamics ignore {name}; the task "
+                                "would run as the nominal one")  # fmt: skip
         if name == "crippled":
             joints = tuple(j.strip() for j in value.split("+"))
             actuated = [env.mj_model.joint(int(env.mj_model.actuator_trnid[a, 0])).name
@@ -131,8 +146,11 @@ def resolve_tasks(
 
 
 def task_set_names(env: LocomotionEnv) -> tuple[str, ...]:
-    """The task sets ``env`` has: every environment's, and its own targets' where it has any."""
-    return TASK_SET_NAMES + (TARGET_SET_NAMES if env.default_target is not None else ())
+    """The task sets ``env`` has: every environment's (less those varying what its dynamics
+    ignore), and its own targets' where it has any."""
+    sets = tuple(s for s in TASK_SET_NAMES
+                 if not (s in SET_FIELDS and _ignores(env, SET_FIELDS[s])))  # fmt: skip
+    return sets + (TARGET_SET_NAMES if env.default_target is not None else ())
 
 
 def task_set(env: LocomotionEnv, set_name: str) -> Task:

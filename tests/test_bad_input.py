@@ -49,6 +49,8 @@ CASES = [
     (["train", "--env", "hoppr"], "unknown environment 'hoppr'"),
     (["train", "--algo", "td3"], "unknown algorithm 'td3'"),
     (["train", "--variant", "ood"], "hopper has no 'ood' task set"),
+    (["train", "--env", "point_robot", "--task", "mass=2"], "point_robot's dynamics ignore mass"),
+    (["train", "--env", "point_robot", "--variant", "slope"], "dynamics ignore slope"),
     (["train", "--alpha=-1"], "expected a finite number >= 0"),
     (["train", "--alpha", "1e39"], "float32"),
     (["train", "--alpha", "nan"], "expected a finite number"),
