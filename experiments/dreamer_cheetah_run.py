@@ -80,7 +80,7 @@ def main() -> None:
             keep = ("step", "return", "return_std", "feedback_norm", "feedforward_norm",
                     "energy", "wm_loss", "train_episode_return", "updates_per_s",
                     "env_steps_per_s")  # fmt: skip
-            # the run's directory under --runs (a path of this machine stays out of the results)
+            # the run's directory under --runs (no machine path in the results)
             rows.append({"alpha": alpha, "seed": seed, "run": os.path.basename(run_dir),
                          "config": {"dreamer": config.dreamer.__dict__,
                                     "num_envs": config.num_envs,

@@ -33,7 +33,7 @@ member's results (config.json, metrics.jsonl, meta-tests; kilobytes) there once 
 every stage, and the next call reads members kept there instead of training them. So
 ``--seeds 0-1`` on one machine, ``--seeds 2-4`` on another (commit the records between) and
 ``--seeds 0-4`` tabulates all ten without training; the analyze report needs checkpoints: it
-reads them in the pieces' runs folders on this machine, and is skipped where some member was
+reads them in the pieces' runs folders where they were trained, and is skipped where some member was
 trained elsewhere.
 """
 
@@ -255,8 +255,8 @@ def write_reports(configs: list[Any], out_dir: str, steps: list[int], tag: str,
     """``minatt-jax analyze`` on every member of each environment (K(t)x + v(t), heatmaps,
     failure grid, maturation at the stages); its figures and tables are copied beside the
     tables (``report.html`` stays under the runs). A member read from records is analyzed in
-    the piece folder that trained it on this machine (``checkpointed_run``); skipped, said
-    once, where some member has no checkpoint here."""
+    the piece folder that trained it on the same machine (``checkpointed_run``); skipped, said
+    once, where some member has no checkpoint on that machine."""
     from minatt_jax.cli import main as cli
 
     for env in dict.fromkeys(c.env for c in configs):

@@ -378,7 +378,7 @@ def checkpointed_run(run_dir: str, runs: str, step: int) -> str:
     """``run_dir`` when it holds a checkpoint at ``step`` or later, else the run that made its
     record: the same member (``same_member``) with the same evaluation at ``step`` and such a
     checkpoint, in a folder under ``runs`` (``runs/<piece>/<run>``). A record keeps no
-    checkpoints, but the piece that trained it on this machine does, and the analyze report
+    checkpoints, but the piece that trained it on the same machine does, and the analyze report
     needs the policies; another draw of the member (a retrained seed) is not it. ``run_dir``
     again when there is none."""
     from minatt_jax import checkpoint

@@ -65,7 +65,7 @@ states = jax.random.normal(jax.random.PRNGKey(1), (BATCH, obs_dim))
 # %% [markdown]
 # ## The feedback term ||du/dx||_F^2: exact against stochastic estimators
 # `jacfwd` and `jacrev` are exact; `hutchinson` uses k Rademacher probes (one VJP each) and is
-# unbiased. The cost is per call on this machine, after compilation.
+# unbiased. The cost is per call on the CPU running the notebook, after compilation.
 
 # %%
 exact = float(jnp.mean(ma.feedback_exact(u, params, states)))

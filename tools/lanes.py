@@ -100,7 +100,7 @@ def main() -> None:
     if not command or not any("{}" in a for a in command):
         fail("the command after -- needs {} where each value goes")
     if not 1 <= args.lanes <= (os.cpu_count() or 1):
-        fail(f"--lanes {args.lanes}: this machine has {os.cpu_count()} cores")
+        fail(f"--lanes {args.lanes}: the machine has {os.cpu_count()} cores")
     for v in args.values:
         try:
             shlex.split(v)

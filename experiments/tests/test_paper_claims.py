@@ -466,7 +466,7 @@ def test_records_of_members_named_alike_but_set_differently_are_both_kept(tmp_pa
 
 def test_a_recorded_member_is_analyzed_in_the_piece_folder_that_trained_it(tmp_path, monkeypatch):
     """The analyze report of a table read from records: each record (no checkpoints) is
-    replaced by the run of the same member in a piece folder on this machine, at a chunk length
+    replaced by the run of the same member in a piece folder on the same machine, at a chunk length
     of its own; not by one of another seed or setting, another draw (other evaluations), nor one
     whose checkpoint is short of the stage; the record itself where there is none."""
     steps = {}  # run directory -> its (fake) latest checkpoint step
