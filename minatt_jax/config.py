@@ -289,7 +289,7 @@ def _field_type(config: TrainConfig, dotted: str) -> Any:
     owner: Any = config
     groups = config.group_names
     if len(group) > 1 or (group and group[0] not in groups):
-        others = [s.name for s in _loaded_specs() if group and s.group(group[0])]
+        others = [s.name for s in registry.registered() if group and s.group(group[0])]
         hint = f" ({group[0]}.* is a setting of --algo {' / '.join(others)})" if others else ""
         raise OverrideError(f"unknown setting {dotted!r}; the groups of algorithm {config.algo} "
                             f"are {', '.join(groups)}{hint}")  # fmt: skip
@@ -301,11 +301,6 @@ def _field_type(config: TrainConfig, dotted: str) -> Any:
         fields = sorted(f"{group[0]}.{n}" if group else n for n in hints if n not in hidden)
         raise OverrideError(f"unknown setting {dotted!r}; choose from {', '.join(fields)}")
     return hints[name]
-
-
-def _loaded_specs() -> list[registry.AgentSpec]:
-    """The agents registered in this process (built-ins are registered once imported)."""
-    return list(registry._SPECS.values())
 
 
 def _parse(text: str, hint: Any, dotted: str) -> Any:
@@ -412,7 +407,7 @@ def dotted_fields(**fields: Any) -> dict[str, Any]:
     groups = set(COMMON_GROUPS)
     if isinstance(fields.get("algo"), str):
         groups |= {g.name for g in registry.get(fields["algo"]).groups}
-    groups |= {g.name for spec in _loaded_specs() for g in spec.groups}
+    groups |= {g.name for spec in registry.registered() for g in spec.groups}
     values = {}
     for key, value in fields.items():
         if value is None:
@@ -500,17 +495,25 @@ def settings_rows(config: TrainConfig) -> list[dict[str, Any]]:
     return rows
 
 
-def default_value(dotted: str, preset: str = "cpu") -> Any:
-    """A setting's value in ``preset``: a common field's, or an agent group's (the first built-in
-    or registered agent that owns the group). None where the agent derives it."""
-    group, _, name = dotted.rpartition(".")
+def _group_in_preset(group: str, preset: str) -> Any:
+    """The settings of ``group`` in ``preset``: the preset's own (common fields, ``ma``,
+    ``caps``, SAC's), else those of the first built-in or registered agent that owns it."""
     config = PRESETS[preset]
-    if group and group not in config.group_names:
-        for algo in registry.names():
-            spec = registry.get(algo)
-            if spec.group(group):
-                return getattr(spec.group(group).default(preset), name)
-    return value_of(config, dotted)
+    if not group:
+        return config
+    if group in config.group_names:
+        return getattr(config, group)
+    for algo in registry.names():
+        owned = registry.get(algo).group(group)
+        if owned is not None:
+            return owned.default(preset)
+    raise OverrideError(f"no agent owns settings group {group!r}")
+
+
+def default_value(dotted: str, preset: str = "cpu") -> Any:
+    """A setting's value in ``preset`` (``_group_in_preset``); None where the agent derives it."""
+    group, _, name = dotted.rpartition(".")
+    return getattr(_group_in_preset(group, preset), name)
 
 
 def default_note(dotted: str, preset: str = "cpu") -> str:
@@ -518,14 +521,9 @@ def default_note(dotted: str, preset: str = "cpu") -> str:
     --help`` appends it to each flag's help)."""
     from minatt_jax.fields import why_of
 
-    value = default_value(dotted, preset)
     group, _, name = dotted.rpartition(".")
-    owner: Any = TrainConfig
-    if group in COMMON_GROUPS:
-        owner = type(getattr(PRESETS[preset], group))
-    elif group:
-        owner = next(spec.group(group).settings for spec in map(registry.get, registry.names())
-                     if spec.group(group))  # fmt: skip
+    owner = _group_in_preset(group, preset)
+    value = getattr(owner, name)
     why = why_of(next(f for f in dataclasses.fields(owner) if f.name == name))
     if value is None:
         shown = "derived"

@@ -131,6 +131,11 @@ def register(spec: AgentSpec) -> AgentSpec:
     return spec
 
 
+def registered() -> list[AgentSpec]:
+    """The agents registered in this process so far (a built-in once its module is imported)."""
+    return list(_SPECS.values())
+
+
 def _entry_points(group: str) -> dict[str, Any]:
     from importlib.metadata import entry_points
 
