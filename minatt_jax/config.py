@@ -377,9 +377,10 @@ def replace_fields(config: TrainConfig, values: dict[str, Any]) -> TrainConfig:
     return dataclasses.replace(config, **top) if top else config
 
 
-def _parse_items(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """``"group.field=value"`` items as typed values; ``algo`` and ``env`` first, so the others
-    are typed against the agent they name."""
+def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> TrainConfig:
+    """A copy with ``"group.field=value"`` overrides applied (OverrideError / ValueError):
+    ``algo`` and ``env`` first, wherever they stand, so the others are typed against the agent
+    they name."""
     pairs = []
     for item in overrides:
         key, sep, text = item.partition("=")
@@ -387,17 +388,9 @@ def _parse_items(config: TrainConfig, overrides: list[str] | tuple[str, ...]) ->
             raise OverrideError(f"override {item!r} must look like group.field=value")
         pairs.append((key.strip(), text.strip()))
     identity = {k: t for k, t in pairs if k in IDENTITY_FIELDS}
-    typed = replace_fields(config, identity) if identity else config
-    values: dict[str, Any] = dict(identity)
-    for key, text in pairs:
-        if key not in IDENTITY_FIELDS:
-            values[key] = _parse(text, _field_type(typed, key), key)
-    return values
-
-
-def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> TrainConfig:
-    """A copy with ``"group.field=value"`` overrides applied (OverrideError / ValueError)."""
-    return replace_fields(config, _parse_items(config, overrides))
+    config = replace_fields(config, identity) if identity else config
+    return replace_fields(config, {k: _parse(t, _field_type(config, k), k) for k, t in pairs
+                                   if k not in IDENTITY_FIELDS})  # fmt: skip
 
 
 def dotted_fields(**fields: Any) -> dict[str, Any]:
