@@ -59,6 +59,12 @@ class MetaEpisode:
         return self.env.action_size
 
     @property
+    def obs_names(self) -> tuple[str, ...]:
+        """Every input of the observation: the inner environment's, then the meta-episode's."""
+        previous = tuple(f"previous_action_{i}" for i in range(self.env.action_size))
+        return (*self.env.obs_names, *previous, "reward", "first_step", "episode_index")
+
+    @property
     def max_steps(self) -> int:
         """The steps of a whole meta-episode (the collector's episode limit)."""
         return self.episodes * self.episode_steps

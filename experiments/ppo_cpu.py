@@ -45,11 +45,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1_024_000)
     parser.add_argument("--episodes", type=int, default=5, help="C-engine episodes per member")
     parser.add_argument("--runs", default="runs/ppo_cpu")
+    parser.add_argument("--name", default="", help="results file suffix (a sweep: --name _sweep)")
     args = parser.parse_args()
     base = with_overrides(PRESETS["cpu"], algo="ppo", env=args.env, total_steps=args.steps)
     sweep = [f"ma.alpha={','.join(f'{a:g}' for a in args.alphas)}"]
     members = population.expand(resolve(base), population.parse_seeds(args.seeds), sweep)
-    out = os.path.join(args.runs, args.env)
+    out = os.path.join(args.runs, args.env + args.name)
     resume = os.path.exists(os.path.join(out, "population.json"))
     if resume:
         members, _ = population.stored_members(out, args.steps)
@@ -87,7 +88,8 @@ def main() -> None:
                                          "permutation_p": stats.permutation_p(a, b)}  # fmt: skip
         rows.append(row)
     command = (f"python experiments/ppo_cpu.py --env {args.env} --seeds {args.seeds} --alphas "
-               f"{' '.join(f'{a:g}' for a in args.alphas)} --steps {args.steps}")  # fmt: skip
+               f"{' '.join(f'{a:g}' for a in args.alphas)} --steps {args.steps}"
+               + (f" --name {args.name}" if args.name else ""))  # fmt: skip
     result = {**study.provenance(command), "env": args.env, "steps": steps, "arms": rows,
               "curves": {a: arm["curves"] for a, arm in arms.items()}}  # fmt: skip
     lines = [f"# PPO on {args.env}, {steps[-1]:,} env steps, seeds {args.seeds}", "",
@@ -106,8 +108,8 @@ def main() -> None:
                 low, high = d["welch_ci"]
                 lines.append(f"- alpha {row['alpha']:g} - alpha 0, {k}: Welch 95% [{low:.4g}, "
                              f"{high:.4g}], permutation p {d['permutation_p']:.3g}")  # fmt: skip
-    study.write_study(RESULTS, f"ppo_cpu_{args.env}", result, "\n".join(lines) + "\n")
-    _figure(result, os.path.join(RESULTS, f"ppo_cpu_{args.env}.png"))
+    study.write_study(RESULTS, f"ppo_cpu_{args.env}{args.name}", result, "\n".join(lines) + "\n")
+    _figure(result, os.path.join(RESULTS, f"ppo_cpu_{args.env}{args.name}.png"))
     print("\n".join(lines))
 
 

@@ -111,6 +111,7 @@ class Trajectory:
     env_metrics: dict[str, jax.Array]  # the environment's per-step metrics (reward terms, ...)
     feedback: jax.Array | None = None  # (T,) ||du/dx||_F^2 at each step, when probed
     gain: jax.Array | None = None  # (T, act_dim, obs_dim) du/dx at each step, when probed
+    qpos: jax.Array | None = None  # (T, nq) the simulator's positions before each step (render)
 
     def transitions(self) -> Transitions:
         """The steps as replay transitions (``terminal`` = ``done``)."""
@@ -126,11 +127,12 @@ def unroll(
     key: jax.Array | None = None,
     probe_feedback: bool = False,
     probe_gain: bool = False,
+    record_qpos: bool = False,
 ) -> Trajectory:
     """``steps`` steps of ``policy`` from ``state``; ``key`` (split per step) feeds ``act``
     (None for deterministic policies); ``probe_feedback`` records ||du/dx||_F^2 per step and
     ``probe_gain`` the Jacobian du/dx itself (for a recurrent policy, with respect to this step's
-    input at the memory it acts with)."""
+    input at the memory it acts with); ``record_qpos`` the simulator's positions (to render)."""
     recurrent = isinstance(policy, RecurrentPolicy)
     first = policy.at(policy.memory) if recurrent else policy
     if (probe_feedback or probe_gain) and first.control is None:
@@ -154,6 +156,8 @@ def unroll(
             "alive": alive,
             "env_metrics": nxt.metrics,
         }
+        if record_qpos:
+            out["qpos"] = state.pipeline_state.qpos
         if probe_gain:
             out["gain"] = gain_at(step_policy.control, x)
         if probe_feedback:

@@ -102,6 +102,15 @@ class Run:
 
         return meta_test(self.run_dir, variant, MetaTestConfig(**settings), log=lambda m: None)
 
+    def render(self, out: str, beside: Sequence[Run] = (), **settings: Any) -> dict[str, Any]:
+        """A video (``out``: .gif or .mp4) of this run's deterministic policy, with ``beside``'s
+        to its right, their controls u(t) and feedback norms drawn beneath; ``settings`` are
+        ``render.render_runs``'s (``variant``, ``task_specs``, ``steps``, ``stride``, ...).
+        Returns each run's episode length, return and feedback norm in the video."""
+        from minatt_jax.render import render_runs
+
+        return render_runs([self.run_dir, *[r.run_dir for r in beside]], out, **settings)
+
     @property
     def label(self) -> str:
         c = self.config

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 from typing import Any, NamedTuple
 
 import jax
@@ -132,15 +133,32 @@ def save(run_dir: str, step: int, state: Any) -> None:
                 ),
             )
             manager.wait_until_finished()
-    except OSError as e:
+    except Exception as e:  # noqa: BLE001 - orbax and tensorstore raise many types on a write
+        _remove_temporary(run_dir, step)
+        why = e.strerror if isinstance(e, OSError) and e.strerror else _first_line(e)
         raise CheckpointError(
-            f"checkpoint {step} could not be written in {run_dir}: {e.strerror or e}; the "
-            "previous checkpoint is intact"
+            f"checkpoint {step} could not be written in {run_dir}: {why}; the previous "
+            "checkpoint is intact"
         ) from None
     if not saved:
         raise CheckpointError(
             f"checkpoint {step} was not written in {run_dir}: a checkpoint at or after it exists"
         )
+
+
+def _remove_temporary(run_dir: str, step: int) -> None:
+    """Removes what a failed save left: orbax's temporary folder of ``step``."""
+    directory = os.path.join(run_dir, "checkpoints")
+    if os.path.isdir(directory):
+        for name in os.listdir(directory):
+            if name.startswith(f"{step}.orbax-checkpoint-tmp"):
+                shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
+
+
+def _first_line(error: Exception) -> str:
+    """An exception's message, first line (tensorstore's messages run to many lines)."""
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__
 
 
 def latest_step(run_dir: str) -> int | None:

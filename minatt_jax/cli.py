@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from collections.abc import Sequence
 from typing import Any, NoReturn
@@ -276,7 +277,9 @@ def build_parser(settings_help: bool = False) -> argparse.ArgumentParser:
     p_an.add_argument("--grid-rollouts", type=_positive_int, default=20)
     p_an.add_argument("--grid-steps", type=_positive_int, default=100)
     p_an.add_argument("--maturation-steps", type=_positive_int, nargs="+",
-                      default=[10_000, 100_000, 200_000])  # fmt: skip
+                      help="training steps whose policy snapshots the maturation figure shows "
+                      "(default 10000 100000 200000, each the nearest snapshot; given steps must "
+                      "lie within the runs)")  # fmt: skip
     p_an.add_argument("--perturbation", default="crippled", help="task set for K(t)/v(t)")
 
     p_eval = sub.add_parser("evaluate", help="evaluate a run's latest checkpoint")
@@ -307,11 +310,63 @@ def build_parser(settings_help: bool = False) -> argparse.ArgumentParser:
     p_exp.add_argument("--out", required=True, help="the .npz file to write")
     p_exp.add_argument("--step", type=_non_negative_int, default=None, help="default: latest")
 
+    p_ren = sub.add_parser(
+        "render", help="a video of runs' policies side by side, their controls drawn beneath"
+    )
+    p_ren.add_argument("run_dirs", nargs="+", metavar="run_dir")
+    p_ren.add_argument("--out", required=True, help="the video to write: .gif (Pillow) or .mp4")
+    p_ren.add_argument("--variant", default=None, help="task set, its first task (default: the "
+                       "run's)")  # fmt: skip
+    p_ren.add_argument("--task", action="append", default=[], metavar="SPEC",
+                       help="a custom task instead, e.g. crippled=thigh_joint")  # fmt: skip
+    p_ren.add_argument("--steps", type=_positive_int, default=None,
+                       help="steps to roll out (default: an episode)")  # fmt: skip
+    p_ren.add_argument("--seed", type=_non_negative_int, default=0)
+    p_ren.add_argument("--stride", type=_positive_int, default=2,
+                       help="render every stride-th step (plays in real time)")  # fmt: skip
+    p_ren.add_argument("--width", type=_positive_int, default=320)
+    p_ren.add_argument("--height", type=_positive_int, default=240)
+    p_ren.add_argument("--label", action="append", default=None, metavar="TEXT",
+                       help="a run's label in the video (once per run; default: algo, alpha, "
+                       "seed)")  # fmt: skip
+    p_ren.add_argument("--json", action="store_true")
+
     p_insp = sub.add_parser("inspect", help="list the items saved in a run's checkpoint")
     p_insp.add_argument("run_dir")
     p_insp.add_argument("--step", type=_non_negative_int, default=None, help="default: latest")
     p_insp.add_argument("--json", action="store_true")
     return parser
+
+
+def _cmd_render(args: argparse.Namespace) -> dict[str, Any]:
+    from minatt_jax import render, run_files, runner
+
+    if args.label is not None and len(args.label) != len(args.run_dirs):
+        raise UserError(f"give --label once per run ({len(args.run_dirs)}), or not at all")
+    if os.path.splitext(args.out)[1].lower() not in render.VIDEO_SUFFIXES:
+        raise UserError(f"cannot tell the video format of {args.out}: end it in .gif or .mp4")
+    try:
+        for d in args.run_dirs:
+            run_files.check_run_dir(d)
+            run_files.check_not_run_file(d, args.out, example="policy.gif")
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    _check_out_file(args.out)
+    try:
+        info = render.render_runs(args.run_dirs, args.out, args.variant, tuple(args.task),
+                                  args.steps, args.seed, args.width, args.height, args.stride,
+                                  args.label)  # fmt: skip
+    except runner.RunError as e:
+        raise UserError(str(e)) from None
+    if args.json:
+        print(json.dumps(info))
+    else:
+        for r in info["runs"]:
+            print(f"{r['label']}: {r['length']} steps, return {r['return']:.1f}, feedback "
+                  f"norm {r['feedback_norm']:.3g}")  # fmt: skip
+        print(f"wrote {args.out}: {info['frames']} frames of {info['size'][0]}x"
+              f"{info['size'][1]} at {info['fps']:.1f} fps")  # fmt: skip
+    return info
 
 
 def _cmd_envs(args: argparse.Namespace) -> dict[str, Any]:
@@ -447,6 +502,7 @@ def _cmd_train_population(args: argparse.Namespace) -> list[dict[str, Any]]:
         except ValueError as e:
             raise UserError(str(e)) from None
         swept = [sweep.partition("=")[0].strip() for sweep in args.sweep]
+    _refuse_dangling_link(args.out, f"--out {args.out}")
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise UserError(f"--out {args.out} is a file, not a directory")
     groups = population.groups(members)
@@ -482,6 +538,7 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     )
     if not args.resume and os.path.exists(os.path.join(out, "config.json")):
         raise UserError(f"{out} already holds a run; pass --resume or choose another --out")
+    made = not os.path.lexists(out)
     _make_out_dir(out)
     print(
         f"training {config.algo} on {config.env} ({config.task_set}) for {config.total_steps} "
@@ -492,6 +549,8 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
     try:
         record = runner.train(config, out, resume=args.resume, log=lambda m: print(m, flush=True))
     except runner.RunError as e:
+        if made and os.path.isdir(out) and set(os.listdir(out)) <= {".lock"}:
+            shutil.rmtree(out, ignore_errors=True)  # refused before writing: no folder left
         raise UserError(str(e), e.exit_status) from None
     if record:
         from minatt_jax.summaries import final_evaluation_lines
@@ -530,6 +589,9 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     variant = args.variant or "custom"
     if args.out:
         _make_out_dir(args.out)
+    elif os.path.isdir(args.run_dir) and not os.access(args.run_dir, os.W_OK):
+        raise UserError(f"cannot write the results into {args.run_dir}: not writable; give "
+                        "--out DIR")  # fmt: skip
     log = (lambda m: None) if args.json else (lambda m: print(m, flush=True))
     try:
         result = meta_test(args.run_dir, variant if args.variant else "nominal", settings,
@@ -543,7 +605,10 @@ def _cmd_meta_test(args: argparse.Namespace) -> dict[str, Any]:
     png = os.path.join(out, f"meta_test_{variant}.png")
     from minatt_jax.analysis.plots import plot_meta_test
 
-    plot_meta_test(result, png)
+    try:
+        plot_meta_test(result, png)
+    except OSError as e:
+        raise UserError(f"cannot write {png}: {e.strerror or e} ({path} is written)") from None
     if args.json:
         print(json.dumps(result))
     else:
@@ -558,13 +623,13 @@ def _cmd_analyze(args: argparse.Namespace) -> dict[str, Any]:
     from minatt_jax import runner
     from minatt_jax.analysis.report import AnalyzeConfig, analyze, check_inputs
 
+    maturation = {"maturation_steps": tuple(args.maturation_steps)} if args.maturation_steps else {}
     settings = AnalyzeConfig(
         episodes=args.episodes, bins=args.bins, grid=args.grid, grid_rollouts=args.grid_rollouts,
-        grid_steps=args.grid_steps, maturation_steps=tuple(args.maturation_steps),
-        perturbation=args.perturbation,
+        grid_steps=args.grid_steps, perturbation=args.perturbation, **maturation,
     )  # fmt: skip
     try:
-        check_inputs(args.run_dirs, args.out)
+        check_inputs(args.run_dirs, args.out, settings if args.maturation_steps else None)
     except runner.RunError as e:
         raise UserError(str(e)) from None
     _make_out_dir(args.out)
@@ -617,6 +682,7 @@ def _make_out_dir(path: str, file: str | None = None) -> None:
     """Creates an output directory (``--out``, or the folder of the output ``file``) before any
     long work, or says in one line why it cannot be."""
     subject, cannot = (path, f"cannot write {file}: ") if file else (f"--out {path}", "cannot ")
+    _refuse_dangling_link(path, subject)
     if os.path.exists(path) and not os.path.isdir(path):
         raise UserError(f"{cannot if file else ''}{subject} is a file, not a directory")
     try:
@@ -626,6 +692,14 @@ def _make_out_dir(path: str, file: str | None = None) -> None:
         raise UserError(f"{cannot}{'' if file else 'create '}{subject}: {reason}") from None
     if not os.access(path, os.W_OK):
         raise UserError(f"{cannot}{'' if file else 'write into '}{subject}: not writable")
+
+
+def _refuse_dangling_link(path: str, subject: str) -> None:
+    """A symbolic link that leads nowhere (a loop, a missing target) is said as such, not as
+    the "File exists" that creating a folder there raises."""
+    if os.path.islink(path) and not os.path.exists(path):
+        raise UserError(f"{subject} is a symbolic link that leads nowhere (a loop or a missing "
+                        "target); give a folder")  # fmt: skip
 
 
 def _check_out_file(path: str) -> None:
@@ -662,11 +736,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Ctrl-C (SIGINT) and SIGTERM at any moment, from the imports on, end the command with one line
     and exit status 130 / 143 (training stops after its current chunk, checkpoint written)."""
-    from minatt_jax import run_guard
+    from minatt_jax import gl, run_guard
 
-    # minatt-jax never renders: without this, importing mujoco probes for an OpenGL library
-    # in a child process (glfw), which outlives a signal that ends the command during imports.
-    os.environ.setdefault("MUJOCO_GL", "disable")
+    # Only `render` renders (offscreen, EGL); for every other command OpenGL stays off: without
+    # this, importing mujoco probes for an OpenGL library in a child process (glfw), which
+    # outlives a signal that ends the command during imports.
+    words = sys.argv[1:] if argv is None else list(argv)
+    os.environ.setdefault("MUJOCO_GL", gl.default_gl() if "render" in words else "disable")
     console = argv is None
     guard = run_guard.exit_on_signals() if console else run_guard.sigterm_raises()
     try:
@@ -684,6 +760,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "analyze": _cmd_analyze,
                 "inspect": _cmd_inspect,
                 "export": _cmd_export,
+                "render": _cmd_render,
             }
             commands[args.command](args)
     except UserError as e:

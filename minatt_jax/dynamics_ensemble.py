@@ -44,7 +44,7 @@ class ModelConfig:
     )
     hidden: tuple[int, ...] = setting((200, 200, 200, 200), min_length=1,
                                       item={"kind": int, "ge": 1})  # fmt: skip
-    lr: float = setting(1e-3, ge=0)
+    lr: float = setting(1e-3, ge=0, le=1)
     batch_size: int = setting(256, ge=1)
     holdout_ratio: float = setting(0.2, gt=0, lt=1)
     max_holdout: int = setting(5_000, ge=1)

@@ -4,9 +4,12 @@ out-of-memory crash (or a machine swapping) minutes later."""
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import jax
+import numpy as np
 
+from minatt_jax.agents.base import hyper_values
 from minatt_jax.run_files import RunError
 
 
@@ -32,3 +35,24 @@ def check_fits(needed: int, what: str, advice: str) -> None:
             f"{what} need about {needed / 2**30:.1f} GiB, more than 90% of the "
             f"{available / 2**30:.1f} GiB the device has free now: {advice}"
         )
+
+
+def state_bytes(trainer: Any) -> int:
+    """Bytes of one train state of ``trainer`` (a ``training.Trainer``), from shapes alone:
+    nothing is allocated, so a network or buffer far too large is measured, not attempted."""
+    hyper = hyper_values(trainer.spec, trainer.config)
+    shapes = jax.eval_shape(trainer.init_state, jax.random.PRNGKey(0), hyper)
+    return sum(int(np.prod(s.shape)) * s.dtype.itemsize for s in jax.tree.leaves(shapes))
+
+
+def check_states(per_state: int, count: int, what: str) -> None:
+    """RunError before anything is allocated or compiled when ``count`` train states of
+    ``per_state`` bytes cannot fit (a state is held about twice while a chunk runs: input and
+    output buffers)."""
+    check_fits(
+        2 * per_state * count,
+        what,
+        f"{per_state / 2**20:.0f} MiB of state each, held twice while a chunk runs; free "
+        "memory, fewer members, smaller networks or buffers (--set buffer_size=..., "
+        "--set mb.model_buffer_size=...)",
+    )

@@ -34,7 +34,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -171,7 +171,7 @@ class Program:
         self.length = max(c.total_steps for c in configs)  # env steps the group trains to
         t = self.trainer
         if "bytes_per_member" not in self.compiled:
-            self.compiled["bytes_per_member"] = state_bytes(t)
+            self.compiled["bytes_per_member"] = memory.state_bytes(t)
         self.bytes_per_member: int = self.compiled["bytes_per_member"]
         self.sharding = self._member_sharding()
         functions = ("population functions", self.sharding)
@@ -225,23 +225,10 @@ def _population_functions(
     return jax.jit(jax.vmap(t.init_state)), jitted_chunk, evaluate
 
 
-def state_bytes(trainer: Trainer) -> int:
-    """Bytes of one member's train state (from shapes alone: nothing is allocated)."""
-    hyper = hyper_values(trainer.spec, trainer.config)
-    shapes = jax.eval_shape(trainer.init_state, jax.random.PRNGKey(0), hyper)
-    return sum(int(np.prod(s.shape)) * s.dtype.itemsize for s in jax.tree.leaves(shapes))
-
-
 def check_memory(per_member: int, members: int) -> None:
     """RunError before compiling when ``members`` states of ``per_member`` bytes cannot fit
-    (the state is held about twice while a chunk runs: input and output buffers)."""
-    memory.check_fits(
-        2 * per_member * members,
-        f"{members} members",
-        f"{per_member / 2**20:.0f} MiB of state each, held twice while a chunk runs; free "
-        "memory, fewer members, or smaller buffers (--set buffer_size=..., "
-        "--set mb.model_buffer_size=...)",
-    )
+    (``memory.check_states``)."""
+    memory.check_states(per_member, members, f"{members} members")
 
 
 def _finished(program: Program, dirs: list[str]) -> bool:
@@ -312,9 +299,23 @@ def train_population(
             raise RunError(str(e)) from None
         except OSError as e:
             raise _unwritable(out_dir, e) from None
-        stop = held.enter_context(run_guard.StopSignals())
-        _write_members([members[i] for i in own_members], [dirs[i] for i in own_members],
-                       index_path, index if rank == 0 else None, resume)  # fmt: skip
+        hint = f"minatt-jax train --out {out_dir} --resume"
+        stop = held.enter_context(run_guard.StopSignals(hint))
+        own_dirs = [dirs[i] for i in own_members]
+        plans: dict[int, ResumePlan] = {}
+        if resume:  # every file a resume reads is read (and checked) before anything is written
+            changed = _check_resumed([members[i] for i in own_members], own_dirs, index_path,
+                                     index if rank == 0 else None)  # fmt: skip
+            for g, (own, program) in enumerate(zip(mine, programs, strict=True)):
+                if program is not None:
+                    plans[g] = _resume_plan(program, [dirs[i] for i in own])
+            for plan in plans.values():
+                plan.apply(log)
+            for member, run_dir in changed:
+                write_json_atomic(os.path.join(run_dir, "config.json"), member.to_dict())
+        else:
+            _write_members([members[i] for i in own_members], own_dirs, index_path,
+                           index if rank == 0 else None)  # fmt: skip
         for g, (indices, program) in enumerate(zip(mine, programs, strict=True)):
             if program is None:
                 continue  # more processes than this group has members
@@ -323,7 +324,7 @@ def train_population(
             on = f" (process {rank + 1}/{processes})" if processes > 1 else ""
             log(f"group {g + 1}/{len(index['groups'])}: {len(group)} members{on} "
                 f"({group[0].algo}, {group[0].env}), {mib:.0f} MiB of state each")  # fmt: skip
-            records = _train_group(program, [dirs[i] for i in indices], resume, log, stop)
+            records = _train_group(program, [dirs[i] for i in indices], plans.get(g), log, stop)
             for i, r in zip(indices, records, strict=True):
                 last[i] = r
             if after_group is not None:
@@ -352,31 +353,35 @@ def stored_members(
     return members, swept
 
 
-def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
-                   index: dict[str, Any] | None, resume: bool) -> None:  # fmt: skip
+def _check_resumed(members: list[TrainConfig], dirs: list[str], index_path: str,
+                   index: dict[str, Any] | None) -> list[tuple[TrainConfig, str]]:  # fmt: skip
     """Checks a resumed population's members against ``members`` (only the length and the chunk
-    length may change, as for single runs, and are rewritten), or writes a new population's
-    member configurations and (``index`` given: process 0) its index."""
+    length may change, as for single runs) and returns the (member, run_dir) pairs whose
+    ``config.json`` the resume rewrites. Reads only: the caller writes once everything is read."""
     out_dir = os.path.dirname(index_path)
-    if resume:
-        if index is not None and not os.path.exists(index_path):
-            raise RunError(f"{out_dir} holds no population to resume (no population.json)")
-        if os.path.exists(index_path):
-            with open(index_path) as f:
-                started = {m["run_dir"] for m in json.load(f)["members"]}
-            if new := [os.path.basename(d) for d in dirs if os.path.basename(d) not in started]:
-                raise RunError(f"{out_dir} holds a population started without "
-                               f"{', '.join(new[:3])}{' ...' if len(new) > 3 else ''}: a resume "
-                               "goes on with the members it started with; train the others "
-                               "under another folder")  # fmt: skip
-        stored = [load_config(d) for d in dirs]
-        for member, old, run_dir in zip(members, stored, dirs, strict=True):
-            if runner.with_stored_schedule(member, old).to_dict() != old.to_dict():
-                raise RunError(f"{run_dir} was made with other settings; see its config.json")
-        for member, old, run_dir in zip(members, stored, dirs, strict=True):
-            if member.to_dict() != old.to_dict():
-                write_json_atomic(os.path.join(run_dir, "config.json"), member.to_dict())
-        return
+    if index is not None and not os.path.exists(index_path):
+        raise RunError(f"{out_dir} holds no population to resume (no population.json)")
+    if os.path.exists(index_path):
+        with open(index_path) as f:
+            started = {m["run_dir"] for m in json.load(f)["members"]}
+        if new := [os.path.basename(d) for d in dirs if os.path.basename(d) not in started]:
+            raise RunError(f"{out_dir} holds a population started without "
+                           f"{', '.join(new[:3])}{' ...' if len(new) > 3 else ''}: a resume "
+                           "goes on with the members it started with; train the others "
+                           "under another folder")  # fmt: skip
+    stored = [load_config(d) for d in dirs]
+    for member, old, run_dir in zip(members, stored, dirs, strict=True):
+        if runner.with_stored_schedule(member, old).to_dict() != old.to_dict():
+            raise RunError(f"{run_dir} was made with other settings; see its config.json")
+    return [(member, run_dir) for member, old, run_dir in zip(members, stored, dirs, strict=True)
+            if member.to_dict() != old.to_dict()]  # fmt: skip
+
+
+def _write_members(members: list[TrainConfig], dirs: list[str], index_path: str,
+                   index: dict[str, Any] | None) -> None:  # fmt: skip
+    """Writes a new population's member configurations and (``index`` given: process 0) its
+    index."""
+    out_dir = os.path.dirname(index_path)
     if index is not None and os.path.exists(index_path):
         raise RunError(f"{out_dir} already holds a population; pass --resume or another --out")
     try:
@@ -414,46 +419,81 @@ def train_in_stages(
     return dirs
 
 
-def _common_checkpoint(dirs: list[str], latest: set[int | None],
-                       log: Callable[[str], None]) -> int:  # fmt: skip
-    """The newest step of which every member has a checkpoint, when the members' latest differ
-    (a stop came while the population saved its members one by one): the newer checkpoints are
-    set aside (``checkpoints_ahead/``, kept) so that training saves over their steps again.
-    RunError when no step is common to all."""
-    have = [set(checkpoint.all_steps(d)) for d in dirs]
-    common = set.intersection(*have)
-    if not common:
-        raise RunError(f"the members' latest checkpoints differ ({sorted(map(str, latest))}) "
-                       "and no checkpoint step is common to all of them")  # fmt: skip
-    step = max(common)
-    for d, steps in zip(dirs, have, strict=True):
-        for newer in sorted(s for s in steps if s > step):
-            checkpoint.set_aside(d, newer, folder="checkpoints_ahead")
-    log(f"the members' latest checkpoints differ ({sorted(map(str, latest))}): a stop came "
-        f"while the population saved; every member resumes from checkpoint {step} (the newer "
-        "ones are kept in <member>/checkpoints_ahead)")  # fmt: skip
-    return step
+class ResumePlan(NamedTuple):
+    """Where a resumed group goes on: the newest checkpoint step every member has and can read
+    (None: no member has one, training starts again), the checkpoints that step leaves behind
+    (unreadable ones and ones ahead of the others, set aside by ``apply``) and every member's
+    records as read."""
+
+    step: int | None
+    unreadable: list[tuple[str, int, str]]  # (member dir, step, why)
+    ahead: list[tuple[str, int]]
+    records: list[list[dict[str, Any]]]
+
+    def apply(self, log: Callable[[str], None]) -> None:
+        """Sets the skipped checkpoints aside (kept, out of ``checkpoints/``) and says so."""
+        for d, step, why in self.unreadable:
+            where = checkpoint.set_aside(d, step)
+            log(f"{os.path.basename(d)}: checkpoint {step} is unreadable ({why}); kept in "
+                f"{where}")  # fmt: skip
+        for d, step in self.ahead:
+            checkpoint.set_aside(d, step, folder="checkpoints_ahead")
+        if self.ahead or self.unreadable:
+            log(f"every member resumes from checkpoint {self.step} (the newest one all of them "
+                "have and can read; newer ones are kept in <member>/checkpoints_ahead or "
+                "checkpoints_unreadable)")  # fmt: skip
+
+
+def _resume_plan(program: Program, dirs: list[str]) -> ResumePlan:
+    """Reads every member's records and, newest first, each step's checkpoints of all members
+    (a dry restore, one member at a time) until one step reads back for every member. RunError
+    when the members have checkpoints but no step common to all of them reads back."""
+    records = [runner.read_metrics(d) for d in dirs]
+    have = [checkpoint.all_steps(d) for d in dirs]
+    if not any(have):
+        return ResumePlan(None, [], [], records)
+    common = sorted(set.intersection(*map(set, have)), reverse=True)
+    if common and common[0] >= program.length:  # finished: nothing is restored or trained
+        return ResumePlan(common[0], [], [], records)
+    like = member(program.init(), 0)
+    unreadable: dict[tuple[str, int], str] = {}
+    for step in common:
+        for d in dirs:
+            try:
+                checkpoint.restore(d, like, step)
+            except checkpoint.CheckpointError as e:
+                unreadable[(d, step)] = str(e)
+        if not any(key[1] == step for key in unreadable):
+            newer = [(d, s) for d, steps in zip(dirs, have, strict=True) for s in steps
+                     if s > step]  # fmt: skip
+            return ResumePlan(step,
+                              [(d, s, unreadable[d, s]) for d, s in newer if (d, s) in unreadable],
+                              [(d, s) for d, s in newer if (d, s) not in unreadable],
+                              records)  # fmt: skip
+    latest = sorted({str(steps[-1]) if steps else "none" for steps in have})
+    why = next(iter(unreadable.values()), "")
+    raise RunError(f"no checkpoint step common to all members reads back (latest: "
+                   f"{', '.join(latest)}){': ' + why if why else ''}; the population is "
+                   "unchanged")  # fmt: skip
 
 
 def _train_group(
     program: Program,
     dirs: list[str],
-    resume: bool,
+    plan: ResumePlan | None,
     log: Callable[[str], None],
     stop: run_guard.StopSignals,
 ) -> list[dict[str, Any]]:
+    """Trains one group from its start or from ``plan`` (a resume, read and checked before)."""
     config, trainer = program.config, program.trainer
-    steps = {checkpoint.latest_step(d) for d in dirs} if resume else {None}
-    step = steps.pop() if len(steps) == 1 else _common_checkpoint(dirs, steps, log)
+    step = plan.step if plan is not None else None
     if step is not None and step >= program.length:
         log(f"{len(dirs)} members already at env step {step}")  # no restore, no compile
-        return [(runner.read_metrics(d) or [{}])[-1] for d in dirs]
+        return [(records or [{}])[-1] for records in plan.records]
     if step is not None:
         runner.check_on_chunk_grid(step, config.eval_every, os.path.dirname(dirs[0]))
-    states = program.init()
-    if resume:
-        # every member's records read (and checked) before any member's file is written
-        records = [runner.read_metrics(d) for d in dirs]
+    states = run_guard.interruptible(program.init, "starting")
+    if plan is not None:
         if step is not None:
             for i, d in enumerate(dirs):  # into the stacked states, one member at a time
                 try:
@@ -463,7 +503,7 @@ def _train_group(
                 states = _set_member(states, one, jnp.int32(i))
                 del one
             states = program.place(states)
-        for d, kept in zip(dirs, records, strict=True):
+        for d, kept in zip(dirs, plan.records, strict=True):
             runner.keep_metrics_until(d, step or 0, kept)
         log(f"resumed {len(dirs)} members at env step {step or 0}")
     t0 = time.perf_counter()

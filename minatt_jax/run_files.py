@@ -165,6 +165,11 @@ def check_run_dir(run_dir: str) -> None:
     if not os.path.isdir(run_dir):
         raise RunError(f"run directory {run_dir} does not exist")
     if not os.path.exists(os.path.join(run_dir, "config.json")):
+        present = set(os.listdir(run_dir))
+        if {"tensorboard", ".lock"} & present and not {"checkpoints", "metrics.jsonl"} & present:
+            raise RunError(f"{run_dir} has no config.json and nothing trained: its run stopped "
+                           "before it wrote its settings; run the original command again "
+                           "(without --resume)")  # fmt: skip
         raise RunError(f"{run_dir} has no config.json: not a minatt-jax run directory")
 
 

@@ -7,6 +7,11 @@
   chunks: the loop finishes the chunk it is in, checkpoints, and exits with 130 (SIGINT) or
   143 (SIGTERM). A second signal exits at once with the same status; checkpoints are written to a
   temporary directory and renamed, so the last complete one is never damaged.
+  Before the loop begins (building, restoring, compiling) a signal ends the command at once:
+  everything written by then is written atomically, and a resume goes on as after SIGKILL.
+* :func:`interruptible` runs a long call into XLA (a compilation, a jitted init) in a worker
+  thread while the main thread waits for it, so that such a signal is handled within a fraction
+  of a second instead of after a compile of seconds to minutes that holds the main thread in C++.
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from types import FrameType
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 class RunLockedError(Exception):
@@ -114,38 +122,94 @@ def exit_on_signals() -> Iterator[None]:
 
 class StopSignals:
     """Context manager: records the first SIGINT/SIGTERM in ``received``; a second one exits.
+    Until ``training()`` (the run loop has begun) and while ``interruptible`` work runs, the first
+    one exits at once, saying how to resume (``resume_hint``).
 
     Only installs handlers in the main thread (Python delivers signals there); elsewhere it is
     inert and signals keep their defaults.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, resume_hint: str = "") -> None:
         self.received: int | None = None
+        self.resume_hint = resume_hint
+        self.phase: str | None = "starting"  # None: the run loop, which stops between chunks
         self._previous: dict[int, object] = {}
 
     @property
     def exit_status(self) -> int:
         return EXIT_STATUS.get(self.received, 1) if self.received is not None else 0
 
+    def training(self) -> None:
+        """The run loop begins: a signal now stops after the chunk in progress."""
+        self.phase = None
+
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         del frame
+        name = signal.Signals(signum).name
+        if self.phase is not None:
+            self.exit_at_once(signum)
         if self.received is not None:
-            sys.stderr.write(
-                f"\nminatt-jax: second {signal.Signals(signum).name}: exiting now; the last "
-                "complete checkpoint is kept\n"
-            )
+            sys.stdout.flush()
+            sys.stderr.write(f"\nminatt-jax: second {name}: exiting now; the last complete "
+                             "checkpoint is kept\n")  # fmt: skip
             sys.stderr.flush()
             os._exit(EXIT_STATUS.get(signum, 1))
         self.received = signum
         sys.stderr.write(
-            f"\nminatt-jax: {signal.Signals(signum).name} received: stopping after the current "
-            "chunk (send it again to exit at once)\n"
+            f"\nminatt-jax: {name} received: stopping after the current chunk (send it again "
+            "to exit at once)\n"
         )
         sys.stderr.flush()
 
+    def exit_at_once(self, signum: int) -> None:
+        """Ends the process now (outside the run loop nothing is half-written)."""
+        hint = f"; resume with: {self.resume_hint}" if self.resume_hint else ""
+        sys.stdout.flush()
+        sys.stderr.write(f"\nminatt-jax: stopped by {signal.Signals(signum).name} while "
+                         f"{self.phase}: no step is lost{hint}\n")  # fmt: skip
+        sys.stderr.flush()
+        os._exit(EXIT_STATUS.get(signum, 1))
+
     def __enter__(self) -> StopSignals:
         self._previous = _install(self._handle, tuple(EXIT_STATUS))
+        if self._previous:
+            _ACTIVE.append(self)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if self._previous:
+            _ACTIVE.remove(self)
         _restore(self._previous)
+
+
+_ACTIVE: list[StopSignals] = []
+
+
+def interruptible(work: Callable[[], T], phase: str = "compiling") -> T:
+    """``work()``, run in a worker thread while the main thread waits in short joins, so that a
+    signal under an active ``StopSignals`` ends the command at once (its handler runs between
+    the joins). Without one, or off the main thread, simply ``work()``."""
+    if not _ACTIVE or threading.current_thread() is not threading.main_thread():
+        return work()
+    stop = _ACTIVE[-1]
+    previous, stop.phase = stop.phase, phase
+    if stop.received is not None:  # came before: the work would only delay the stop
+        stop.exit_at_once(stop.received)
+    box: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            box["value"] = work()
+        except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
+            box["error"] = e
+
+    worker = threading.Thread(target=run, name=f"minatt-jax {phase}", daemon=True)
+    try:
+        worker.start()
+        while worker.is_alive():
+            worker.join(0.05)
+    finally:
+        stop.phase = previous
+    if "error" in box:
+        raise box["error"]
+    return box["value"]

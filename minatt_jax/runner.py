@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import minatt_jax.envs as envs
-from minatt_jax import checkpoint, mujoco_engine, run_guard
+from minatt_jax import checkpoint, divergence, memory, mujoco_engine, run_guard
 from minatt_jax.agents.base import config_field, hyper_values, with_hyper
 from minatt_jax.config import TrainConfig, replace_fields, resolve
 from minatt_jax.evaluation import make_evaluator, summarize
@@ -87,39 +87,48 @@ def make_record(
     return {**record, **timings}
 
 
-def non_finite(record: dict[str, Any]) -> list[str]:
-    """The names of a record's non-finite values (a diverged run: NaN or inf losses, returns).
-
-    The model's holdout MSE is left out: it is inf by definition until the first model fit.
-    """
-    bad = []
-    for k, v in record.items():
-        if k.startswith("model_holdout_mse"):
-            continue
-        values = np.asarray(v, dtype=np.float64)
-        if not np.all(np.isfinite(values)):
-            bad.append(k)
-    return bad
-
-
 def write_step(run_dir: str, step: int, state: Any, record: dict, writer: Any) -> None:
     """Appends the record (metrics.jsonl, TensorBoard), then the policy snapshot, then the
     checkpoint of ``state``: a crash between the two never leaves a checkpoint without its
-    snapshot (a snapshot without a checkpoint is rewritten identically on resume)."""
-    with open(os.path.join(run_dir, "metrics.jsonl"), "a") as f:
-        f.write(json.dumps(record) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    if writer is not None:
-        for k, v in record.items():
-            if k != "step" and not isinstance(v, list) and np.isfinite(v):
-                writer.add_scalar(k, v, step)
-        writer.flush()
-    checkpoint.save_policy_snapshot(run_dir, step, *state.policy_items())
+    snapshot (a snapshot without a checkpoint is rewritten identically on resume). A write that
+    fails (a full disk, a file-size limit, a vanished directory) takes the step's record and
+    snapshot back and raises RunError in one line: no record outlives its checkpoint."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    size = os.path.getsize(path) if os.path.exists(path) else 0
+    snapshot = None
     try:
+        with open(path, "a") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        snapshot = checkpoint.save_policy_snapshot(run_dir, step, *state.policy_items())
         checkpoint.save(run_dir, step, state)
-    except checkpoint.CheckpointError as e:
-        raise RunError(str(e)) from None
+    except (OSError, checkpoint.CheckpointError) as e:
+        _take_back(path, size, snapshot)
+        why = str(e) if isinstance(e, checkpoint.CheckpointError) else (
+            f"cannot write {e.filename or path}: {e.strerror or e}")  # fmt: skip
+        raise RunError(f"{why}; nothing of step {step} was kept, the run resumes from its "
+                       f"previous checkpoint: {_resume_hint(run_dir)}") from None  # fmt: skip
+    if writer is not None:  # optional, after the step is complete: never fails a run
+        try:
+            for k, v in record.items():
+                if k != "step" and not isinstance(v, list) and np.isfinite(v):
+                    writer.add_scalar(k, v, step)
+            writer.flush()
+        except OSError:
+            pass
+
+
+def _take_back(metrics_path: str, size: int, snapshot: str | None) -> None:
+    """Undoes a step's partial writes: its record (metrics.jsonl cut back to ``size``) and its
+    policy snapshot. Best effort: what cannot be undone is what a resume rewrites anyway."""
+    try:
+        if os.path.exists(metrics_path) and os.path.getsize(metrics_path) > size:
+            os.truncate(metrics_path, size)
+        if snapshot is not None and os.path.exists(snapshot):
+            os.remove(snapshot)
+    except OSError:
+        pass
 
 
 def _restore_newest_intact(run_dir: str, state: Any, log: Callable[[str], None]) -> tuple[int, Any]:
@@ -211,7 +220,11 @@ def trainer_for(config: TrainConfig) -> tuple[Trainer, dict[str, Any]]:
     that differ only in seed, length or swept values share it, as the program never reads
     those (they enter the state: ``init(key, hyper)``)."""
     key = program_key(config)
-    return keep_latest(_TRAINERS, key, lambda: (make_train(config), {}))
+    try:
+        return keep_latest(_TRAINERS, key, lambda: (make_train(config), {}))
+    except MemoryError as e:  # a template of the networks' shapes already does not fit
+        raise RunError(f"these settings need more memory than there is ({e}); choose smaller "
+                       "networks or buffers") from None  # fmt: skip
 
 
 def compiled_once(
@@ -225,7 +238,7 @@ def compiled_once(
     else:
         t0 = time.perf_counter()
         try:
-            compiled[key] = jitted.lower(args).compile()
+            compiled[key] = run_guard.interruptible(lambda: jitted.lower(args).compile())
         except PlacementError as e:  # raised while the agent's update is traced
             raise RunError(str(e)) from None
         log(f"compiled the {what} in {time.perf_counter() - t0:.1f} s")
@@ -293,7 +306,7 @@ def train(
     except ValueError as e:
         raise RunError(str(e)) from None
     try:
-        with run_guard.lock_run(run_dir), run_guard.StopSignals() as stop:
+        with run_guard.lock_run(run_dir), run_guard.StopSignals(_resume_hint(run_dir)) as stop:
             return _train(config, run_dir, resume, log, stop)
     except run_guard.RunLockedError as e:
         raise RunError(str(e)) from None
@@ -307,6 +320,9 @@ def _train(
     stop: run_guard.StopSignals,
 ) -> dict[str, Any]:
     trainer, compiled = trainer_for(config)
+    if "bytes_per_member" not in compiled:
+        compiled["bytes_per_member"] = memory.state_bytes(trainer)
+    memory.check_states(compiled["bytes_per_member"], 1, "these settings")
     if config.planned_steps != config.total_steps:
         chunks = config.planned_steps // config.eval_every
         log(f"note: {config.total_steps} steps is not a multiple of eval_every "
@@ -322,8 +338,7 @@ def _train(
                            "with the changed settings; ask for more steps (--steps) to train "
                            "with them")  # fmt: skip
         hyper = hyper_values(trainer.spec, config)
-        state = trainer.init(jax.random.PRNGKey(config.seed), hyper)
-        step, state = _restore_newest_intact(run_dir, state, log)
+        step, state = _restore_newest_intact(run_dir, _initial_state(trainer, config), log)
         # Every resume trains with the run's own values, whatever the checkpoint held.
         state = with_hyper(state, hyper)
         if step > config.planned_steps:
@@ -351,12 +366,19 @@ def _train(
             raise RunError(f"{run_dir} holds checkpoints or metrics of another run but no "
                            "config.json; choose another --out or remove them")  # fmt: skip
         write_json_atomic(config_path, config.to_dict())
-        state = trainer.init(jax.random.PRNGKey(config.seed), hyper_values(trainer.spec, config))
+        state = _initial_state(trainer, config)
 
     t0 = time.perf_counter()
     chunk = compiled_once(compiled, "chunk", trainer.train_chunk, state, "training step", log)
     members = Members(trainer, [config], [run_dir], chunk, trainer.evaluate, batched=False)
     return train_chunks(members, state, time.perf_counter() - t0, stop, log)[0]
+
+
+def _initial_state(trainer: Trainer, config: TrainConfig) -> Any:
+    """The run's initial state (its seed's, with its hyper values); jitted, so built under
+    ``run_guard.interruptible``: a signal meanwhile ends the command at once."""
+    hyper, key = hyper_values(trainer.spec, config), jax.random.PRNGKey(config.seed)
+    return run_guard.interruptible(lambda: trainer.init(key, hyper), "starting")
 
 
 class Members(NamedTuple):
@@ -398,6 +420,8 @@ def train_chunks(
     writers = [tensorboard(d) for d in dirs]
     eval_keys = [jax.random.PRNGKey(c.seed + 1_000_003) for c in members.configs]
     records: list[dict[str, Any]] = [{} for _ in dirs]
+    stop.training()  # from here a signal stops after the chunk in progress
+    guards = [divergence.Guard(trainer.env.action_size, read_metrics(d)) for d in dirs]
     start = time.perf_counter()
     try:
         while members.env_steps(states) < total:
@@ -421,13 +445,14 @@ def train_chunks(
                 evaluation = summarize(members.member(results, i), trainer.env.dt)
                 record = make_record(step, evaluation, members.member(metrics, i), timings,
                                      trainer.steps_per_chunk)  # fmt: skip
-                bad = non_finite(record) + non_finite_state(members.member(states, i))
+                bad = guards[i].check(record, members.member(states, i))
                 if bad:
                     raise _diverged(members, d, step, bad)
                 chunk_records.append(record)
             for i, (d, record) in enumerate(zip(dirs, chunk_records, strict=True)):
                 # Rates per member: a population's aggregate is len(dirs) times these.
                 write_step(d, step, members.member(states, i), record, writers[i])
+                guards[i].observe(record)
                 records[i] = record
             # The latest chunk's rate: the first chunks are faster (warm-up makes no updates).
             chunks_left = -(-(total - step) // trainer.steps_per_chunk)
@@ -456,19 +481,19 @@ def _progress(step: int, total: int, records: list[dict], rate: float, eta: str)
 
 
 def _diverged(members: Members, run_dir: str, step: int, bad: list[str]) -> DivergedError:
-    """The error of a chunk that went non-finite: nothing of it is written."""
+    """The error of a chunk that diverged (``divergence.Guard``): nothing of it is written."""
     last = checkpoint.latest_step(run_dir)
+    kept = f"checkpoint {last} is kept" if last is not None else "no checkpoint was written yet"
     if not members.batched:
         return DivergedError(
-            f"training went non-finite at step {step} ({', '.join(bad[:4])}); nothing of "
-            f"this chunk was saved and checkpoint {last} is kept. Lower alpha or the "
-            f"learning rates and continue from it: {_resume_hint(run_dir)} --alpha A "
-            "(or --set sac.actor_lr=...)"
+            f"training diverged at step {step} ({'; '.join(bad[:3])}); nothing of this chunk "
+            f"was saved and {kept}. Lower alpha or the learning rates and continue: "
+            f"{_resume_hint(run_dir)} --alpha A (or --set GROUP.LR=...)"
         )
     return DivergedError(
-        f"member {os.path.basename(run_dir)} went non-finite at step {step} "
-        f"({', '.join(bad[:4])}); nothing of this chunk was saved and every member keeps "
-        f"checkpoint {last}. Change that member's settings (its config.json) or train it alone"
+        f"member {os.path.basename(run_dir)} diverged at step {step} ({'; '.join(bad[:3])}); "
+        f"nothing of this chunk was saved and every member's {kept}. Change that member's "
+        "settings (its config.json) or train it alone"
     )
 
 
@@ -482,14 +507,6 @@ def stopped_error(
     name = signal.Signals(stop.received).name
     hint = _resume_hint(resume_dir or run_dir)
     return StoppedError(f"stopped by {name}: {saved}; resume with: {hint}", stop.exit_status)
-
-
-def non_finite_state(state: Any) -> list[str]:
-    """The agent's parameter groups that hold non-finite values (checked once per chunk)."""
-    groups = state.parameter_groups()
-    finite = {name: jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
-              for name, tree in groups.items()}  # fmt: skip
-    return [name for name, ok in jax.device_get(finite).items() if not ok]
 
 
 ENGINES = ("mjx", "mujoco")

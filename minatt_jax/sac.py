@@ -50,9 +50,9 @@ class SACConfig:
     """
 
     hidden: tuple[int, ...] = setting((256, 256), min_length=1, item={"kind": int, "ge": 1})
-    actor_lr: float = setting(3e-4, ge=0)
-    critic_lr: float = setting(3e-4, ge=0)
-    entropy_lr: float = setting(3e-4, ge=0)
+    actor_lr: float = setting(3e-4, ge=0, le=1)
+    critic_lr: float = setting(3e-4, ge=0, le=1)
+    entropy_lr: float = setting(3e-4, ge=0, le=1)
     gamma: float = setting(0.99, ge=0, lt=1)
     tau: float = setting(0.005, gt=0, le=1)
     batch_size: int = setting(256, ge=1)

@@ -11,10 +11,22 @@ import json
 import os
 import tempfile
 
-import jax
-import pytest
+from minatt_jax import gl
 
-import minatt_jax.envs as envs
+# mujoco reads MUJOCO_GL once, at its first import: the test process imports it able to render
+# offscreen (tests/test_render.py), while the commands tests start in subprocesses keep their
+# own choice (the CLI turns OpenGL off for every command but render).
+_GL_BEFORE = os.environ.get("MUJOCO_GL")
+gl.choose_for_rendering()
+import mujoco  # noqa: E402, F401 - imported here, with the backend chosen above
+
+if _GL_BEFORE is None:
+    os.environ.pop("MUJOCO_GL", None)
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+import minatt_jax.envs as envs  # noqa: E402
 
 # The controller makes the folder; xdist workers and subprocesses find it in their environment.
 _CACHE = os.environ.get("JAX_COMPILATION_CACHE_DIR") or tempfile.mkdtemp(
@@ -101,8 +113,10 @@ def digest(root: str) -> dict[str, str]:
     out = {}
     for base, _, files in os.walk(root):
         for name in files:
-            if name != ".lock":
-                path = os.path.join(base, name)
+            path = os.path.join(base, name)
+            if os.path.islink(path):
+                out[path] = "link to " + os.readlink(path)
+            elif name != ".lock":
                 out[path] = hashlib.sha256(open(path, "rb").read()).hexdigest()
     return out
 

@@ -39,8 +39,17 @@ def paths(tmp_path_factory):
     corrupt = str(root / "corrupt")
     os.makedirs(corrupt)
     open(os.path.join(corrupt, "config.json"), "w").write('{"env": "hopper", "sac": 3}')
+    metrics_dir = str(root / "metrics_dir")  # the same run, its metrics.jsonl a folder
+    shutil.copytree(run, metrics_dir)
+    os.remove(os.path.join(metrics_dir, "metrics.jsonl"))
+    os.makedirs(os.path.join(metrics_dir, "metrics.jsonl"))
+    loop = str(root / "loop")  # a symbolic link to itself
+    os.symlink(loop, loop)
+    unstarted = str(root / "unstarted")  # killed before config.json: a lock and no training
+    os.makedirs(os.path.join(unstarted, "tensorboard"))
     return {"RUN": run, "BAD_METRICS": bad_metrics, "MOON": moon, "FILE": a_file,
-            "CORRUPT": corrupt,
+            "CORRUPT": corrupt, "LOOP": loop, "UNSTARTED": unstarted,
+            "METRICS_DIR": metrics_dir,
             "MISSING": str(root / "missing"), "ROOT": str(root)}  # fmt: skip
 
 
@@ -65,7 +74,18 @@ CASES = [
     # declared admissible values (minatt_jax.fields), one line naming the field
     (["train", "--set", "physics=bogus"], "physics must be one of"),
     (["train", "--set", "sac.gamma=1.5"], "sac.gamma must be a finite number in [0, 1)"),
-    (["train", "--set", "sac.actor_lr=-0.001"], "sac.actor_lr must be a finite number >= 0"),
+    (["train", "--set", "sac.actor_lr=-0.001"], "sac.actor_lr must be a finite number in [0, 1]"),
+    # a step size past any sane value (it used to train to a loss of 1e21 and exit 0)
+    (["train", "--set", "sac.actor_lr=1e3"], "sac.actor_lr must be a finite number in [0, 1]"),
+    (["train", "--algo", "ppo", "--set", "ppo.lr=2"], "ppo.lr must be a finite number in (0, 1]"),
+    # a network far too large for memory: measured from shapes, refused before allocating
+    (
+        ["train", "--preset", "smoke", "--set", "sac.hidden=200000,200000", "--out", "{MISSING}"],
+        "these settings need",
+    ),
+    (["train", "--out", "{LOOP}"], "symbolic link that leads nowhere"),
+    (["train", "--seeds", "0-1", "--out", "{LOOP}"], "symbolic link that leads nowhere"),
+    (["train", "--resume", "--out", "{UNSTARTED}"], "run the original command again"),
     (["train", "--set", "sac.hidden="], "sac.hidden must be at least 1 value"),
     (["train", "--set", "sac.hidden=0"], "sac.hidden must be at least 1 value"),
     (["train", "--set", "sac.batch_size=0"], "sac.batch_size must be an integer >= 1"),
@@ -157,6 +177,12 @@ CASES = [
     (["export", "{RUN}", "--out", "{RUN}/policy_snapshots/x.npz"], "the run's own file"),
     (["analyze", "{RUN}", "--out", "{RUN}"], "the run's own directory"),
     (["analyze", "{RUN}", "{RUN}/", "--out", "{ROOT}/report"], "given twice"),
+    # refused before the analysis, not after minutes of it
+    (
+        ["analyze", "{RUN}", "--maturation-steps", "300", "99999", "--out", "{ROOT}/report"],
+        "maturation step 99999 is past the last policy snapshot",
+    ),
+    (["analyze", "{METRICS_DIR}", "--out", "{ROOT}/report"], "Is a directory"),
 ]
 
 

@@ -28,6 +28,10 @@ def test_sizes_and_bad_settings(wrapped):
     assert wrapped.observation_size == inner.observation_size + inner.action_size + EXTRA
     assert wrapped.action_size == inner.action_size and wrapped.dt == inner.dt
     assert wrapped.max_steps == EPISODES * STEPS
+    # every input named (an export or an analysis reads them): the meta-episode's last
+    assert len(wrapped.obs_names) == wrapped.observation_size
+    assert wrapped.obs_names[-EXTRA - inner.action_size] == "previous_action_0"
+    assert wrapped.obs_names[-EXTRA:] == ("reward", "first_step", "episode_index")
     # the simulator state is held once (pipeline_state), not again inside the inner state
     state = wrapped.reset(jax.random.PRNGKey(0))
     assert state.info["inner"].pipeline_state is None

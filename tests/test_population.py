@@ -13,6 +13,7 @@ import sys
 import jax
 import numpy as np
 import pytest
+from conftest import digest
 
 from minatt_jax import checkpoint, population, runner
 from minatt_jax import training as train_module
@@ -167,6 +168,13 @@ def test_model_refits_run_only_when_due_in_a_population(monkeypatch):
     assert len(calls) == 2
 
 
+def _cut_largest_file(folder: str) -> None:
+    """Cuts the largest file under ``folder`` to half its length (a damaged checkpoint)."""
+    files = [os.path.join(b, f) for b, _, fs in os.walk(folder) for f in fs]
+    path = max(files, key=os.path.getsize)
+    os.truncate(path, os.path.getsize(path) // 2)
+
+
 @pytest.mark.slow
 def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
     base = ["train", "--preset", "smoke", "--seeds", "0-1", "--sweep", "ma.alpha=0,1"]
@@ -203,6 +211,30 @@ def test_population_resume_is_exact_and_sharding_over_two_devices(tmp_path):
         ours, straight_run = (runner.read_metrics(os.path.join(f, name)) for f in (torn, straight))
         assert runner.without_timings(ours) == runner.without_timings(straight_run)
     assert os.listdir(os.path.join(torn, names[0], "checkpoints_ahead"))
+    # One member's newest checkpoint damaged (half of its largest file cut): the resume reads
+    # every member's checkpoints before it writes anything, and every member goes on from 300.
+    damaged = str(tmp_path / "damaged")
+    shutil.copytree(split, damaged)
+    _cut_largest_file(os.path.join(damaged, names[0], "checkpoints", "600"))
+    lines = []
+    longer = [with_overrides(m, total_steps=900) for m in members]
+    population.train_population(longer, damaged, ["ma.alpha"], resume=True, log=lines.append)
+    assert any("sac_alpha0_seed0: checkpoint 600 is unreadable" in line for line in lines)
+    for name in names:
+        ours = runner.without_timings(runner.read_metrics(os.path.join(damaged, name)))
+        straight_run = runner.without_timings(runner.read_metrics(os.path.join(straight, name)))
+        assert [r["step"] for r in ours] == [300, 600, 900] and ours[:2] == straight_run
+    # No step readable by all: refused in one line before anything is written or compiled.
+    _cut_largest_file(os.path.join(damaged, names[0], "checkpoints", "600"))
+    _cut_largest_file(os.path.join(damaged, names[0], "checkpoints", "900"))
+    before = digest(damaged)
+    refused = subprocess.run([sys.executable, "-m", "minatt_jax.cli", "train", "--out", damaged,
+                              "--resume", "--steps", "1200"], capture_output=True, text=True,
+                             timeout=600)  # fmt: skip
+    assert refused.returncode == 2, refused.stderr
+    assert refused.stderr.strip().splitlines() == [refused.stderr.strip()]
+    assert "no checkpoint step common to all members reads back" in refused.stderr
+    assert "compiled" not in refused.stdout and digest(damaged) == before
     # The same population with its members split over two (forced host) devices.
     sharded = str(tmp_path / "sharded")
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}

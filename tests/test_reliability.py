@@ -76,11 +76,19 @@ def test_diverged_training_stops_with_3_and_resumes_with_other_settings(tmp_path
     status, io = run_cli(["train", "--out", out, "--resume", "--steps", "600", "--alpha", "1e38"],
                       capsys)  # fmt: skip
     assert status == 3, io.err
-    assert "non-finite at step 600" in io.err and "ma_penalty" in io.err
+    assert "diverged at step 600" in io.err and "ma_penalty is not finite" in io.err
     assert "checkpoint 300 is kept" in io.err and "--resume" in io.err
     assert checkpoint.all_steps(out) == [300] and _records(out) == before
     assert runner.load_config(out).ma.alpha == 1e38  # the resume itself was valid
-    status, io = run_cli(["train", "--out", out, "--resume", "--alpha", "0.5"], capsys)
+    # Finite but blown up: a loss 1e18 and a collapsed entropy stop the run just the same.
+    status, io = run_cli(["train", "--out", out, "--resume", "--alpha", "1e8", "--set",
+                          "sac.actor_lr=1"], capsys)  # fmt: skip
+    assert status == 3, io.err
+    assert "diverged at step 600" in io.err and "running scale" in io.err
+    assert len(io.err.strip().splitlines()) == 1 and "Traceback" not in io.err
+    assert checkpoint.all_steps(out) == [300] and _records(out) == before
+    status, io = run_cli(["train", "--out", out, "--resume", "--alpha", "0.5", "--set",
+                          "sac.actor_lr=3e-4"], capsys)  # fmt: skip
     assert status == 0, io.err
     assert "resuming with ma.alpha=0.5" in io.out
     assert [r["step"] for r in _records(out)] == [300, 600]
@@ -224,3 +232,60 @@ def test_a_start_that_fails_before_writing_leaves_no_folder(tmp_path):
     with run_guard.lock_run(kept):
         open(os.path.join(kept, "config.json"), "w").write("{}")
     assert sorted(os.listdir(kept)) == [".lock", "config.json"]
+
+
+_FILE_SIZE_LIMIT = """
+import resource, sys
+limit = int(sys.argv[1])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ: EFBIG
+from minatt_jax.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.slow
+def test_a_write_failure_during_a_checkpoint_is_one_line_and_resumes_exactly(tmp_path, capsys):
+    """A 32 KiB file-size limit: config.json, the record and the policy snapshot fit, the
+    checkpoint's files do not. One line naming the cause, exit 2, the step's record and snapshot
+    taken back, no temporary folder; the resume then trains the step as a straight run does."""
+    out, straight = str(tmp_path / "run"), str(tmp_path / "straight")
+    argv = [*SMOKE, "--steps", "300", "--alpha", "1"]
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    limited = subprocess.run([sys.executable, "-c", _FILE_SIZE_LIMIT, str(32 * 1024), *argv,
+                              "--out", out], env=env, capture_output=True, text=True,
+                             timeout=600)  # fmt: skip
+    assert limited.returncode == 2, limited.stderr
+    lines = limited.stderr.strip().splitlines()
+    assert len(lines) == 1, limited.stderr
+    assert "checkpoint 300 could not be written" in lines[0] and "File too large" in lines[0]
+    assert "nothing of step 300 was kept" in lines[0] and "--resume" in lines[0]
+    assert runner.read_metrics(out) == [] and checkpoint.snapshot_steps(out) == []
+    assert checkpoint.all_steps(out) == [] and os.listdir(os.path.join(out, "checkpoints")) == []
+    assert run_cli(["train", "--out", out, "--resume"], capsys)[0] == 0
+    assert run_cli([*argv, "--out", straight], capsys)[0] == 0
+    assert _records(out) == _records(straight) and checkpoint.all_steps(out) == [300]
+
+
+@pytest.mark.slow
+def test_a_signal_while_compiling_ends_the_command_at_once(tmp_path):
+    """SIGTERM two seconds into the compilation (which takes tens of seconds): exit 143 within a
+    few seconds, one line saying so and how to resume; the resume then trains the run."""
+    out = str(tmp_path / "run")
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    cmd = [sys.executable, "-m", "minatt_jax.cli", *SMOKE, "--steps", "300", "--out", out]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+    deadline = time.time() + 300
+    while time.time() < deadline and not os.path.exists(os.path.join(out, "config.json")):
+        time.sleep(0.05)
+    time.sleep(2.0)  # the trainer is built and the compile has begun
+    sent = time.time()
+    proc.send_signal(signal.SIGTERM)
+    out_text, err = proc.communicate(timeout=60)
+    waited = time.time() - sent
+    assert proc.returncode == 143, err
+    assert "compiled" not in out_text and waited < 5, (waited, out_text)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "stopped by SIGTERM while" in lines[0], err
+    assert f"resume with: minatt-jax train --out {out} --resume" in lines[0]
+    assert checkpoint.all_steps(out) == [] and runner.read_metrics(out) == []

@@ -79,7 +79,7 @@ class MBConfig:
     model_buffer_size: int = setting(2_000_000, ge=1)
     real_ratio: float = setting(0.05, ge=0, le=1)
     obs_clip: float = setting(100.0, gt=0)
-    meta_inner_lr: float = setting(1e-3, ge=0, why="the paper appendix's beta")
+    meta_inner_lr: float = setting(1e-3, ge=0, le=1, why="the paper appendix's beta")
     meta_first_order: bool = setting(False, why="second-order MAML, as the paper")
     meta_inner: str = setting("sac", choices=("sac", "vpg"), why="the paper's Algorithm 1")
     vpg_horizon: int = setting(10, ge=1)

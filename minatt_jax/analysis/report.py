@@ -374,9 +374,10 @@ def profiles_figure(runs: list[Run], path: str) -> None:
     save_figure(fig, path)
 
 
-def check_inputs(run_dirs: list[str], out_dir: str) -> None:
-    """RunError for a run given twice (it would count as two seeds) or a report directory on
-    a run's own files."""
+def check_inputs(run_dirs: list[str], out_dir: str, settings: AnalyzeConfig | None = None) -> None:
+    """RunError, before any work, for a run given twice (it would count as two seeds), a report
+    directory on a run's own files, a run whose records cannot be read, or (``settings`` given:
+    the user chose them) a maturation step past a run's last policy snapshot."""
     seen: dict[str, str] = {}
     for d in run_dirs:
         real = os.path.realpath(d)
@@ -385,6 +386,15 @@ def check_inputs(run_dirs: list[str], out_dir: str) -> None:
                                   "one seed")  # fmt: skip
         seen[real] = d
         run_files.check_not_run_file(d, out_dir, example="report")
+        if os.path.isdir(d):
+            runner.read_metrics(d)  # read at the end for the tables: checked now
+            steps = checkpoint.snapshot_steps(d)
+            late = [s for s in (settings.maturation_steps if settings else ()) if steps
+                    and s > steps[-1]]  # fmt: skip
+            if late:
+                raise runner.RunError(f"maturation step {late[0]} is past the last policy "
+                                      f"snapshot of {d} (step {steps[-1]}); choose steps up to "
+                                      "it")  # fmt: skip
 
 
 @dataclasses.dataclass

@@ -71,7 +71,7 @@ class DreamerConfig:
     retnorm_limit: float = setting(1.0, gt=0)
     min_std: float = setting(0.1, gt=0)
     max_std: float = setting(1.0, gt=0)
-    lr: float = setting(4e-5, gt=0)
+    lr: float = setting(4e-5, gt=0, le=1)
     agc: float = setting(0.3, gt=0)
     eps: float = setting(1e-20, gt=0)
     beta1: float = setting(0.9, ge=0, lt=1)
