@@ -20,10 +20,17 @@ sys.path.insert(0, os.path.join(ROOT, "experiments"))  # the studies' helpers: s
 
 from study import stage_label as stage_name  # noqa: E402
 
-REPO_URL = "https://github.com/minatt-jax/minatt-jax/blob/main"
+# Links into the repository where the site's builder names it (mkdocs.yml reads the same
+# variable for the header link); without it, paths are given as text.
+REPO_URL = os.environ.get("MINATT_JAX_REPO_URL", "").rstrip("/")
 VERDICTS = ("reproduced", "not reproduced", "inconclusive at this scale", "not tested",
             "no claim in the paper")  # fmt: skip
 METRICS = ("return", "feedback_norm", "feedforward_norm", "energy")
+
+
+def repo_link(path: str) -> str:
+    """A link to a committed file where the repository's address is known, else its path."""
+    return f"[`{path}`]({REPO_URL}/blob/main/{path})" if REPO_URL else f"`{path}`"
 
 
 def fmt(value: Any) -> str:
@@ -105,9 +112,62 @@ def study_sections() -> list[str]:
         rows = study_rows(data)
         if not rows:
             continue
-        out += [f"### {name}", "", f"`{data['command']}` on {data.get('device', '-')}.", "",
-                table(["env", "arm", "phase", "stage", *METRICS], rows), ""]  # fmt: skip
+        body = [f"`{data['command']}` on {data.get('device', '-')}.", "",
+                table(["env", "arm", "phase", "stage", *METRICS], rows)]  # fmt: skip
+        if data.get("arms"):
+            FIGURES[f"figures/{name}.png"] = lambda path, d=data, n=name: arm_figure(d, n, path)
+            body = [f"![{name}: return and feedback norm per arm](figures/{name}.png)", "", *body]
+        title = data.get("title") or name.replace("_", " ")
+        out += [f'??? note "{title} ({len(rows)} rows)"', ""]
+        out += ["    " + line if line else "" for line in "\n".join(body).split("\n")] + [""]
     return out
+
+
+def t_interval(summary: dict[str, Any]) -> tuple[float, float]:
+    """The 95% t interval of a mean from its summary (mean, std, n)."""
+    from scipy import stats as scipy_stats
+
+    n, mean, std = summary.get("n", 0), summary["mean"], summary.get("std", 0.0)
+    if not n or n < 2:
+        return mean, mean
+    half = scipy_stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)
+    return mean - half, mean + half
+
+
+def arm_figure(data: dict[str, Any], name: str, path: str) -> None:
+    """Each arm's return and feedback norm, mean and 95% t interval over seeds (a reading
+    study's ``arms``), alpha 0 drawn in black: where MA moves them and by how much."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    arms = [a for a in data["arms"] if isinstance(a.get("return"), dict)]
+    labels = [f"{a.get('env', '')} {a.get('placement', '')} a{fmt(a.get('alpha'))}"
+              f"{' rn' if a.get('normalize_reward') else ''}" for a in arms]  # fmt: skip
+    fig, axes = plt.subplots(1, 2, figsize=(9, 0.22 * len(arms) + 1.2), sharey=True,
+                             layout="constrained")  # fmt: skip
+    for ax, metric in zip(axes, ("return", "feedback_norm"), strict=True):
+        for i, a in enumerate(arms):
+            if not isinstance(a.get(metric), dict):
+                continue
+            low, high = t_interval(a[metric])
+            color = "black" if not a.get("alpha") else "tab:blue"
+            ax.plot([low, high], [i, i], color=color, lw=1.5)
+            ax.plot(a[metric]["mean"], i, "o", color=color, ms=3)
+        ax.set_title(f"{metric} (mean, 95% t interval)", fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.grid(alpha=0.3)
+    axes[1].set_xscale("log")
+    axes[0].set_yticks(range(len(arms)), labels)
+    axes[0].invert_yaxis()
+    fig.suptitle(name, fontsize=9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# Figures the pages show, drawn at build time from committed files: virtual path -> draw(path).
+FIGURES: dict[str, Any] = {}
 
 
 def study_rows(data: dict[str, Any]) -> list[list[Any]]:
@@ -145,8 +205,8 @@ def results_page() -> str:
             "10x to 10,000x (the paper's own energy for one agent reads 4.54 in its Table 1 and "
             "363 in Table S5), so MA's effect is compared by its direction against MB-MPO, not "
             "by magnitude.",
-            f"The full verdict table with each cell's reasoning is "
-            f"[paper_claims.md]({REPO_URL}/experiments/results/paper_claims.md).", ""]  # fmt: skip
+            "The full verdict table with each cell's reasoning is "
+            + repo_link("experiments/results/paper_claims.md") + ".", ""]  # fmt: skip
     return "\n".join(head + claims_section(claims) + [""] + study_sections()) + "\n"
 
 
@@ -199,13 +259,87 @@ def nested_table(value: dict[str, Any]) -> str:
     return rows_table(rows)
 
 
-PAGES = {"results.md": results_page, "benchmark-results.md": benchmark_page}
+def settings_page() -> str:
+    """Every configuration field (``--set GROUP.FIELD=VALUE``, ``mj.train(**fields)``), from the
+    field declarations: its type and rule, its value in each preset, what it means."""
+    from minatt_jax.config import PRESETS, settings_by_owner
+
+    lines = ["# Settings", "",
+             "Every field a run's configuration holds, generated from the field declarations at "
+             "every build of this site. On the command line `--set GROUP.FIELD=VALUE` (and "
+             "`--sweep GROUP.FIELD=V1,V2` for a population) sets one; in Python "
+             "`minatt_jax.make_config(preset, overrides=[\"GROUP.FIELD=VALUE\"])` or "
+             "`mj.train(group_field=value)`. A value outside a field's rule is refused in one "
+             "line naming the field. The presets are `smoke` (tests), `cpu` (the default) and "
+             "`paper` (the paper's appendix); a group belongs to the agents named in its "
+             "heading, and a blank value is derived from the others (`resolve`). "
+             "`minatt-jax train --help` prints the same list.", ""]  # fmt: skip
+    for owner, rows in settings_by_owner(builtin_only=True):
+        title = "Common to every agent" if owner == "common" else f"`--algo {owner}` adds"
+        header = ["setting", "rule", *PRESETS, "meaning (where the default comes from)"]
+        body = [[f"`{r['name']}`", r["rule"] or r["type"],
+                 *[_shown(r["presets"][p]) for p in PRESETS],
+                 r["meaning"] + (f" ({r['why']})" if r.get("why") else "")]
+                for r in rows]  # fmt: skip
+        lines += [f"## {title}", "", table(header, body), ""]
+    return "\n".join(lines)
+
+
+def _shown(value: Any) -> str:
+    if value is None:
+        return ""
+    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
+def example_figures() -> dict[str, str]:
+    """The committed example reports' figures the analysis page shows: virtual path -> file."""
+    out = {}
+    for report, names in (("hopper_sac20k_report", ("heatmap_feedback.png", "profiles.png",
+                                                    "decomposition.png", "failure_grid.png")),
+                          ("mamba_point_robot_report", ("adaptation.png",))):  # fmt: skip
+        for name in names:
+            out[f"figures/{report}/{name}"] = os.path.join(ROOT, "experiments/results", report,
+                                                           name)  # fmt: skip
+    return out
+
+
+def front_figure(path: str) -> None:
+    """The home page's figure, drawn from the committed reading study (tools/front_figure.py)."""
+    sys.path.insert(0, os.path.join(ROOT, "tools"))
+    import front_figure as tool
+
+    tool.draw(path)
+
+
+def changelog_page() -> str:
+    """CHANGELOG.md, under the version this site documents."""
+    from minatt_jax import __version__
+
+    with open(os.path.join(ROOT, "CHANGELOG.md")) as f:
+        text = f.read()
+    return text.replace("# Changelog", f"# Changelog\n\nThis site documents minatt-jax "
+                        f"{__version__} (`minatt-jax --version`).", 1)  # fmt: skip
+
+
+PAGES = {"results.md": results_page, "benchmark-results.md": benchmark_page,
+         "settings.md": settings_page, "changelog.md": changelog_page}  # fmt: skip
 
 try:  # under `mkdocs build`: write the pages into the site's virtual docs folder
     import mkdocs_gen_files
 except ImportError:  # imported by a test or run by hand
     mkdocs_gen_files = None
 if mkdocs_gen_files is not None and __name__ in ("__main__", "<run_path>"):
+    import tempfile
+
     for page, make in PAGES.items():
         with mkdocs_gen_files.open(page, "w") as f:
             f.write(make())
+    FIGURES["figures/ma_hopper_sac.png"] = front_figure
+    with tempfile.TemporaryDirectory() as tmp:
+        drawn = {}
+        for target, draw in FIGURES.items():
+            drawn[target] = os.path.join(tmp, os.path.basename(target))
+            draw(drawn[target])
+        for target, source in {**drawn, **example_figures()}.items():
+            with open(source, "rb") as src, mkdocs_gen_files.open(target, "wb") as f:
+                f.write(src.read())

@@ -15,6 +15,7 @@ import glob
 import hashlib
 import json
 import os
+import platform
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -92,8 +93,13 @@ def provenance(command: str) -> dict[str, str]:
     import jax
 
     device = jax.devices()[0]
-    return {"command": command, "date": datetime.date.today().isoformat(),
-            "device": f"{device.platform} ({device.device_kind})"}  # fmt: skip
+    if device.platform == "cpu":
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+        pinned = f", {cores} core{'s' * (cores != 1)} used" if cores else ""
+        name = f"a {os.cpu_count()}-core {platform.machine()} CPU{pinned}"
+    else:
+        name = f"{len(jax.devices())} x {device.device_kind}"
+    return {"command": command, "date": datetime.date.today().isoformat(), "device": name}
 
 
 def arm_summary(values: Sequence[float], baseline: Sequence[float] | None = None) -> dict:

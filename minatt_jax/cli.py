@@ -88,22 +88,12 @@ def _version() -> str:
 def settings_epilog() -> str:
     """Every setting ``--set`` and ``--sweep`` take (the common ones, then each known agent's
     groups), with its rule and its cpu-preset value, from the field declarations."""
-    from minatt_jax.agents import registry
-    from minatt_jax.config import PRESETS, settings_rows, with_overrides
+    from minatt_jax.config import settings_by_owner
 
     lines = ["settings (--set GROUP.FIELD=VALUE, --sweep GROUP.FIELD=V1,V2; cpu preset values):"]
-    seen: set[str] = set()
-    for algo in registry.names():
-        try:
-            config = with_overrides(PRESETS["cpu"], algo=algo)
-        except ValueError:
-            continue
-        rows = [r for r in settings_rows(config) if r["name"] not in seen]
-        if not rows:
-            continue
-        lines.append(f"\n  {'common' if not seen else '--algo ' + algo}:")
+    for owner, rows in settings_by_owner():
+        lines.append(f"\n  {owner if owner == 'common' else '--algo ' + owner}:")
         for row in rows:
-            seen.add(row["name"])
             default = row["default"]
             shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
             meaning = f"  {row['meaning']}" if row["meaning"] else ""

@@ -488,6 +488,29 @@ def settings_rows(config: TrainConfig) -> list[dict[str, Any]]:
     return rows
 
 
+def settings_by_owner(builtin_only: bool = False) -> list[tuple[str, list[dict[str, Any]]]]:
+    """Every setting of every known agent (``builtin_only``: of minatt-jax's own) once, under
+    the first owner that has it ("common" for the fields all share, else the agent's name),
+    each row of ``settings_rows`` with ``"presets"``: its value in each preset. What ``train
+    --help`` and the settings page list."""
+    from minatt_jax.agents import registry
+
+    owners: list[tuple[str, list[dict[str, Any]]]] = []
+    seen: set[str] = set()
+    for algo in list(registry.BUILTIN) if builtin_only else registry.names():
+        try:
+            per_preset = {p: settings_rows(with_overrides(PRESETS[p], algo=algo)) for p in PRESETS}
+        except ValueError:
+            continue
+        values = {p: {r["name"]: r["default"] for r in rows} for p, rows in per_preset.items()}
+        rows = [{**r, "presets": {p: values[p].get(r["name"]) for p in PRESETS}}
+                for r in per_preset["cpu"] if r["name"] not in seen]  # fmt: skip
+        if rows:
+            owners.append(("common" if not seen else algo, rows))
+            seen.update(r["name"] for r in rows)
+    return owners
+
+
 def _group_in_preset(group: str, preset: str) -> Any:
     """The settings of ``group`` in ``preset``: the preset's own (common fields, ``ma``,
     ``caps``, SAC's), else those of the first built-in or registered agent that owns it."""

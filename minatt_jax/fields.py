@@ -47,6 +47,8 @@ class Rule:
             parts.append(f"one of {self.choices}")
         elif self.kind is bool:
             parts.append("true or false")
+        elif self.kind is str:
+            parts.append("a name")
         elif self.kind is tuple:
             size = (f"{self.length} values" if self.length is not None else
                     f"at least {self.min_length} value{'s' * (self.min_length != 1)}"

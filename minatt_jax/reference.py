@@ -33,13 +33,20 @@ def matching_rows(config: Any) -> list[dict[str, Any]]:
 
 
 def comparison_lines(config: Any, record: dict[str, Any]) -> list[str]:
-    """Lines that set this run's final evaluation beside the matching reference rows (none
-    when nothing matches; mode and task set must be the defaults for a like comparison)."""
-    if config.ma.mode != "full" or config.tasks or config.task_set != "nominal":
-        return []
+    """Lines that set this run's final evaluation beside the matching reference rows, or one
+    line saying what the references cover when nothing matches (mode and task set must be the
+    defaults for a like comparison)."""
     rows = matching_rows(config)
-    if not rows:
-        return []
+    default = config.ma.mode == "full" and not config.tasks and config.task_set == "nominal"
+    if not rows or not default:
+        ref = reference_runs()
+        cover = sorted({f"{r['algo']} on {r['env']} ({r['preset']}, {r['total_steps']:,} steps)"
+                        for r in ref["rows"]})  # fmt: skip
+        return [
+            f"\nno measured reference for these settings (the reference runs cover "
+            f"{'; '.join(cover)}, the default MA mode and task set); the studies of "
+            "experiments/results/ and the docs' Results page measure other settings"
+        ]
     ref = reference_runs()
     head = f"{'':22s}" + "".join(f"{m:>22s}" for m in METRICS)
     lines = [f"\nthe same settings, measured ({ref['command']}; mean +- std over seeds):", head]

@@ -207,7 +207,7 @@ def write_video(frames: np.ndarray, path: str, fps: float) -> None:
         images = [Image.fromarray(f) for f in frames]
         buffer = io.BytesIO()
         images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
-                       duration=int(round(1000 / fps)), loop=0)  # fmt: skip
+                       duration=int(round(1000 / fps)), loop=0, optimize=True)  # fmt: skip
         write_bytes_atomic(path, buffer.getvalue())
     elif suffix == ".mp4":
         try:

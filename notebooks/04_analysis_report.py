@@ -24,9 +24,11 @@ import os
 import subprocess
 import sys
 
+SOURCE = os.environ.get("MINATT_JAX_SOURCE", "")  # minatt-jax's source: git URL, path or wheel
 if importlib.util.find_spec("minatt_jax") is None:
-    source = os.environ.get("MINATT_JAX_SOURCE", "git+https://github.com/minatt-jax/minatt-jax")
-    subprocess.check_call([sys.executable, "-m", "pip", "install", "-q", source])
+    if not SOURCE:
+        raise RuntimeError("minatt_jax is not installed: set SOURCE to where its source lives")
+    subprocess.check_call([sys.executable, "-m", "pip", "install", "-q", SOURCE])
 
 # %% Parameters
 SMOKE = os.environ.get("MINATT_SMOKE") == "1"

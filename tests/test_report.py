@@ -80,12 +80,16 @@ def test_analyze_writes_every_figure_and_a_self_contained_report(smoke_runs, tmp
             "--maturation-steps", "300"]  # fmt: skip
     assert main(argv) == 0
     html = (out / "report.html").read_text()
-    for name in FIGURES:
+    drawn = (*FIGURES, "frames.png")  # frames.png: the tests render offscreen (conftest)
+    for name in drawn:
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000, name
         assert f"id='{name}'" in html
-    assert html.count("data:image/png;base64,") == len(FIGURES)
+    assert html.count("data:image/png;base64,") == len(drawn)
     assert "src='http" not in html  # nothing to fetch: readable offline
+    # tables as HTML tables (no raw Markdown), each figure captioned, each run's settings
+    assert html.count("<table>") >= 3 and "<th>return</th>" in html and "|---|" not in html
+    assert html.count("<figcaption>") == len(drawn) and "config.json</summary>" in html
     tables = json.loads((out / "tables.json").read_text())
     assert [r["group"] for r in tables["meta_training"]] == ["sac alpha=0", "sac alpha=1"]
     assert np.isfinite(tables["meta_training"][0]["return"])

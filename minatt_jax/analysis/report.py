@@ -13,6 +13,8 @@ aggregated. For every group the report shows
 * ``failure_grid.png``: failure rate over (forward velocity, torso pitch rate) initial states,
   per group and the difference first group - second group (``control_analysis.failed``);
 * ``maturation.png``: the feedback heatmap (first projection) from policy snapshots at chosen steps;
+* ``frames.png``: six rendered frames of one episode of each group's first run (where the
+  machine renders offscreen: ``minatt_jax.render``);
 * ``adaptation.png`` (runs in meta-episodes only): return, feedback, feedforward and energy per
   inner episode of a meta-episode, the in-context adaptation curve (a table too);
 * ``tables.md`` / ``tables.json``: meta-training rows (final evaluation) and meta-testing rows
@@ -532,12 +534,46 @@ def write_report(report: Report, out_dir: str) -> dict[str, Any]:
             "return, feedback, feedforward and energy per inner "
             "episode of a meta-episode (in-context adaptation)"
         )
+    if _frames_figure(groups, os.path.join(out_dir, "frames.png")):
+        figures["frames.png"] = (
+            "six frames of one episode of each group's first run (its "
+            "deterministic policy on the nominal task)"
+        )
     markdown = tables_markdown(tables)
     runner.write_text_atomic(os.path.join(out_dir, "tables.md"), markdown)
     runner.write_json_atomic(os.path.join(out_dir, "tables.json"), tables)
     _write_html(out_dir, figures, markdown, runs)
     return {"out_dir": out_dir, "figures": list(figures), "groups": list(groups),
             "tables": tables, "failure_rates": {g: grids[g].tolist() for g in grids}}  # fmt: skip
+
+
+def _frames_figure(groups: dict[str, list[Run]], path: str, count: int = 6) -> bool:
+    """A strip of ``count`` frames per group (``render``): what each group's policy does. False,
+    with nothing written, where this machine cannot render offscreen (no EGL or OSMesa)."""
+    from minatt_jax import render
+
+    rows = []
+    try:
+        for g, members in groups.items():
+            r = render.rollout(members[0].run_dir, variant="nominal", label=g)
+            stride = max(r.length // count, 1)
+            frames = render.body_frames(r, 200, 150, stride=stride)[:count]
+            rows.append((g, r.length, frames))
+    except runner.RunError:
+        return False
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(rows), count, squeeze=False, layout="constrained",
+                             figsize=(1.9 * count, 1.6 * len(rows)))  # fmt: skip
+    for (g, length, frames), row in zip(rows, axes, strict=True):
+        for i, ax in enumerate(row):
+            ax.axis("off")
+            if i < len(frames):
+                ax.imshow(frames[i])
+                ax.set_title(f"step {i * max(length // count, 1)}", fontsize=7)
+        row[0].text(-0.05, 0.5, g, transform=row[0].transAxes, rotation=90, ha="right",
+                    va="center", fontsize=8)  # fmt: skip
+    save_figure(fig, path)
+    return True
 
 
 def _adaptation_figure(rows: list[dict[str, Any]], path: str) -> None:
@@ -645,23 +681,52 @@ def _maturation_figure(maturation, env, bins, path):
     save_figure(fig, path)
 
 
+_STYLE = """
+body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
+h1{font-size:1.6em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.88em;display:block;overflow-x:auto}
+th,td{border:1px solid #ddd;padding:.3em .6em;text-align:right;white-space:nowrap}
+th{background:#f2f4f8} td:first-child,th:first-child{text-align:left}
+tr:nth-child(even) td{background:#fafafa}
+figure{margin:1.2em 0} figcaption{color:#555;font-size:.9em;margin-top:.3em}
+img{max-width:100%} code{background:#f4f4f4;padding:0 .2em}
+details{margin:.4em 0} summary{cursor:pointer}
+"""
+
+
 def _write_html(out_dir: str, figures: dict[str, str], markdown: str, runs: list[Run]) -> None:
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>minatt-jax report</title>",
-             "<style>body{font-family:sans-serif;max-width:1300px;margin:auto}"
-             "img{max-width:100%}pre{background:#f4f4f4;padding:8px}</style></head><body>",
-             "<h1>minatt-jax analysis report</h1>", "<h2>Runs</h2><ul>"]  # fmt: skip
+    """report.html: one self-contained page (styles, figures embedded) with the runs and their
+    settings, the tables as HTML tables and each figure with its caption."""
+    import markdown as md
+
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        "<title>minatt-jax analysis report</title>",
+        f"<style>{_STYLE}</style></head><body>",
+        "<h1>minatt-jax analysis report</h1>",
+        "<h2>Runs</h2>",
+        "<table><tr><th>run</th><th>group</th><th>seed</th><th>settings</th></tr>",
+    ]
     for r in runs:
-        parts.append(f"<li>{html.escape(r.run_dir)}: {html.escape(r.group)}, seed "
-                     f"{r.config.seed}</li>")  # fmt: skip
-    parts.append("</ul><h2>Tables</h2><pre>" + html.escape(markdown) + "</pre>")
-    parts.append("<h2>Figures</h2><ul>")
+        settings = html.escape(json.dumps(r.config.to_dict(), indent=1))
+        parts.append(f"<tr><td>{html.escape(r.run_dir)}</td><td>{html.escape(r.group)}</td>"
+                     f"<td>{r.config.seed}</td><td style='text-align:left'><details><summary>"
+                     f"config.json</summary><pre>{settings}</pre></details></td></tr>")  # fmt: skip
+    parts.append("</table><h2>Figures</h2><ul>")
     parts += [f"<li><a href='#{name}'>{name}</a>: {html.escape(text)}</li>"
               for name, text in figures.items()]  # fmt: skip
     parts.append("</ul>")
     for name, text in figures.items():
         with open(os.path.join(out_dir, name), "rb") as f:
             data = base64.b64encode(f.read()).decode()
-        parts.append(f"<h3 id='{name}'>{name}</h3><p>{html.escape(text)}</p>"
-                     f"<img alt='{name}' src='data:image/png;base64,{data}'>")  # fmt: skip
+        caption = f"<figcaption><b>{name}</b>: {html.escape(text)}</figcaption>"
+        image = f"<img alt='{name}' src='data:image/png;base64,{data}'>"
+        parts.append(f"<figure id='{name}'>{image}{caption}</figure>")
+    parts.append("<h2>Tables</h2>" + md.markdown(_demoted(markdown), extensions=["tables"]))
     parts.append("</body></html>")
     runner.write_text_atomic(os.path.join(out_dir, "report.html"), "\n".join(parts))
+
+
+def _demoted(markdown: str) -> str:
+    """``tables.md`` with its headings one level down (they sit under the page's "Tables")."""
+    return "\n".join("#" + line if line.startswith("#") else line for line in markdown.split("\n"))
