@@ -71,6 +71,19 @@ def claims_section(claims: dict[str, Any]) -> list[str]:
     counts = Counter(c["verdict"] for c in cells)
     out = ["## The paper's claims", "", "\n\n".join(claims["summary"]), "",
            table(["verdict", "table cells"], [[v, counts.get(v, 0)] for v in VERDICTS]), "",
+           "### Findings", "",
+           "Each effect of MA once, with the cells that measure it (tested: at the paper's own "
+           "stage with >= 5 seeds per arm; per-row Holm and Benjamini-Hochberg over all tested "
+           "cells are the two families).", "",
+           table(["finding", "claims of the paper", "tested", "ours significant: lower / higher",
+                  "paper's direction there: lower / higher", "Holm: reproduced / other way",
+                  "BH: reproduced / other way"],
+                 [[f["finding"], f["claims"], f["tested"],
+                   f"{f['ours_lower']} / {f['ours_higher']}",
+                   f"{f['paper_lower']} / {f['paper_higher']}",
+                   f"{f['reproduced_holm']} / {f['other_way_holm']}",
+                   f"{f['reproduced_bh']} / {f['other_way_bh']}"]
+                  for f in claims.get("findings", []) if "tested" in f]), "",
            "### Headline claims", "",
            table(["claim", "paper", "ours", "verdict", "why"],
                  [[h["claim"], h["paper"], h["ours"], h["verdict"], h["reason"]]

@@ -189,10 +189,11 @@ def verdict(claimed: str, ev: dict[str, Any] | None, stage: int, paper_p: float 
     wlo, whi = t["welch_ci"]
     said = (f"difference {t['diff']:.3g}, Welch [{wlo:.3g}, {whi:.3g}], permutation "
             f"p = {t['p']:.2g}")  # fmt: skip
-    if ev["stage"] != stage:
+    if ev["stage"] != stage:  # data of another stage: its direction, no test of this cell
         why = (
             f"our last stage is {xt.stage_label(ev['stage'])}, the paper's "
-            f"{xt.stage_label(stage)}; ours {_sign(t['diff'])}: {said}"
+            f"{xt.stage_label(stage)}; ours {_sign(t['diff'])} there: difference "
+            f"{t['diff']:.3g}, Welch [{wlo:.3g}, {whi:.3g}] (no p-value: another stage)"
         )
         return "inconclusive at this scale", why, "unresolved"
     if n < xt.MIN_SEEDS:
@@ -257,13 +258,70 @@ def table_claims(srcs: list[dict]) -> list[dict[str, Any]]:
                 "paper_p": paper_p, "ours": ev, "p": p, "tests": t,
             })  # fmt: skip
     corrected(claims, lambda c: (c["env"], c["phase"], c["stage"], c["alpha"]))
+    for c, q in zip(claims, stats.benjamini_hochberg([c["p"] for c in claims]), strict=True):
+        c["p_bh"] = q  # Benjamini-Hochberg over every tested cell of every table
     for c in claims:
         c["verdict"], c["reason"], c["direction"] = verdict(
             c["claimed"], c["ours"], c["stage"], c["paper_p"], c["p_holm"], c["tests"]
         )
+        c["verdict_bh"] = verdict(c["claimed"], c["ours"], c["stage"], c["paper_p"], c["p_bh"],
+                                  c["tests"])[0]  # fmt: skip
         if c["tests"] is None:
             del c["tests"]
     return claims
+
+
+# The findings the table cells test: one effect of MA each, however many cells measure it.
+FINDINGS = (("feedback_norm", "MA's feedback norm"), ("return", "MA's return"),
+            ("energy", "MA's energy"), ("feedforward_norm", "MA's feedforward norm"))  # fmt: skip
+
+
+def findings(cells: list[dict[str, Any]], headline: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each finding once, with the cells under it: how many are claims of the paper, how many
+    we tested at the paper's stage, and what those tests say under per-row Holm and under
+    Benjamini-Hochberg over all tested cells; then adaptation and cost from their headline
+    claims (each one test or one measurement)."""
+    out = []
+    for metric, name in FINDINGS:
+        mine = [c for c in cells if c["metric"] == metric]
+        claims = [c for c in mine if c["verdict"] != "no claim in the paper"]
+        tested = [c for c in claims if c["verdict"] in ("reproduced", "not reproduced")
+                  or not math.isnan(c["p_holm"])]  # fmt: skip
+        row = {"finding": name, "cells": len(mine), "claims": len(claims),
+               "tested": len(tested)}  # fmt: skip
+        for family, key in (("holm", "verdict"), ("bh", "verdict_bh")):
+            row[f"reproduced_{family}"] = sum(c[key] == "reproduced" for c in tested)
+            row[f"other_way_{family}"] = sum(c[key] == "not reproduced" for c in tested)
+        judged = [c for c in tested if c["direction"] in ("lower", "higher")]
+        row["ours_lower"] = sum(c["direction"] == "lower" for c in judged)
+        row["ours_higher"] = sum(c["direction"] == "higher" for c in judged)
+        row["paper_lower"] = sum(c["claimed"] == "lower" for c in judged)
+        row["paper_higher"] = sum(c["claimed"] == "higher" for c in judged)
+        out.append(row)
+    for pattern, name in (("adapt", "adaptation"), ("update time", "cost"),
+                          ("overhead", "cost")):  # fmt: skip
+        for h in headline:
+            if pattern in h["claim"].lower() and not any(h["claim"] == r.get("claim")
+                                                         for r in out):  # fmt: skip
+                out.append({"finding": name, "claim": h["claim"], "verdict": h["verdict"]})
+    return out
+
+
+def findings_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The findings as a table (Markdown)."""
+    lines = ["| finding | table cells | claims of the paper | tested at its stage | "
+             "significant: ours lower / higher (the paper's direction there: lower / higher) | "
+             "per-row Holm: reproduced / other way | Benjamini-Hochberg over all tested cells: "
+             "reproduced / other way |", "|---" * 7 + "|"]  # fmt: skip
+    for r in rows:
+        if "claim" in r:
+            lines.append(f"| {r['finding']} | - | {r['claim']} | - | - | {r['verdict']} | - |")
+            continue
+        lines.append(f"| {r['finding']} | {r['cells']} | {r['claims']} | {r['tested']} | "
+                     f"{r['ours_lower']} / {r['ours_higher']} ({r['paper_lower']} / "
+                     f"{r['paper_higher']}) | {r['reproduced_holm']} / {r['other_way_holm']} | "
+                     f"{r['reproduced_bh']} / {r['other_way_bh']} |")  # fmt: skip
+    return lines
 
 
 def aggregate(name: str, paper: str, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -746,20 +804,40 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
                 default=0)  # fmt: skip
     heads = {v: [h["claim"].split(" (")[0] for h in result["headline"] if h["verdict"] == v]
              for v in ("reproduced", "not reproduced")}  # fmt: skip
+    judged = ("reproduced", "not reproduced")
+    bh = {v: sum(c.get("verdict_bh") == v for c in cells) for v in judged}
+    by_finding = "; ".join(_finding_text(f) for f in result["findings"] if f.get("tested"))
     return [
         f"Of the paper's {len(result['cells'])} table cells, {no_claim} are no claim (the "
         f"paper's own difference is not significant by its numbers) and {len(cells)} are; our "
         f"runs stand at {', '.join(xt.stage_label(s) for s in stages) or 'no stage'} with at "
         f"most {seeds} seeds per arm, and {len(at_stage)} cells are measured at the paper's "
-        "own stage.",
-        f"After the exact permutation test and Holm's correction, {count['reproduced']} cells "
-        f"reproduce, {count['not reproduced']} go the other way and "
-        f"{count['inconclusive at this scale']} are inconclusive at this scale "
-        f"({count['not tested']} not tested).",
+        "own stage (its \"epoch: 10K\" read as 10K env steps).",
+        f"Counted by finding (exact permutation tests, Holm within each table row): "
+        f"{by_finding}; so {count['reproduced']} cells reproduce and {count['not reproduced']} "
+        f"go the other way mostly as the paper's own direction changes between cells, while "
+        f"Benjamini-Hochberg over all tested cells gives {bh['reproduced']} and "
+        f"{bh['not reproduced']}.",
         "Headline claims reproduced: " + ("; ".join(heads["reproduced"]) or "none")
         + "; not reproduced: " + ("; ".join(heads["not reproduced"]) or "none")
-        + " (the rest are inconclusive at this scale: see the table).",
+        + f" (the rest are inconclusive at this scale: see the table; {count['not tested']} "
+        "cells not tested).",
     ]  # fmt: skip
+
+
+def _finding_text(f: dict[str, Any]) -> str:
+    """One finding's tested cells in words: where our tests are significant, and which way
+    the paper claimed at those cells."""
+    if not f["ours_lower"] and not f["ours_higher"]:
+        return f"{f['finding']}: {f['tested']} tested, none significant"
+
+    def counted(lower: int, higher: int) -> str:
+        return " and ".join(f"{d} in {n}" for d, n in (("lower", lower), ("higher", higher)) if n)
+
+    ours = counted(f["ours_lower"], f["ours_higher"])
+    paper = counted(f["paper_lower"], f["paper_higher"])
+    return (f"{f['finding']}: {f['tested']} tested, significantly {ours} (the paper's direction "
+            f"at those cells: {paper})")  # fmt: skip
 
 
 def _tests_text(c: dict[str, Any]) -> str:
@@ -767,8 +845,11 @@ def _tests_text(c: dict[str, Any]) -> str:
     if not t:
         return "-"
     lo, hi = t["welch_ci"]
+    if c["ours"]["stage"] != c["stage"]:
+        return f"{t['diff']:.3g} [Welch {lo:.3g}, {hi:.3g}] (another stage: no p-value)"
     holm = f", Holm {c['p_holm']:.2g}" if not math.isnan(c["p_holm"]) else ""
-    return f"{t['diff']:.3g} [Welch {lo:.3g}, {hi:.3g}], p {t['p']:.2g}{holm}"
+    bh = f", BH {c['p_bh']:.2g}" if not math.isnan(c.get("p_bh", math.nan)) else ""
+    return f"{t['diff']:.3g} [Welch {lo:.3g}, {hi:.3g}], p {t['p']:.2g}{holm}{bh}"
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -787,6 +868,13 @@ def markdown(result: dict[str, Any]) -> str:
              "scale** (the reason says which: seeds, stage or the test) or **not tested**. "
              "Standard deviations are sample ones (ddof 1).", "", "Sources: "
              + ("; ".join(result["sources"]) or "none"), "",
+             "## Findings", "",
+             "Each finding once, with the cells that measure it. A cell is tested only at the "
+             "paper's own stage (the paper's \"epoch: 10K\" read as 10K env steps) with >= 5 "
+             "seeds per arm; cells whose data come from another stage carry no p-value. Under "
+             "per-row Holm each table row (one env, phase, stage and alpha) is a family; under "
+             "Benjamini-Hochberg every tested cell of every table is one family.", "",
+             *findings_lines(result["findings"]), "",
              "## Headline claims", "", "| claim | paper | ours | verdict | reason |",
              "|---|---|---|---|---|"]  # fmt: skip
     for c in result["headline"]:
@@ -855,6 +943,7 @@ def main() -> None:
               "headline": headline,
               "reading": reading_study(), "cells": cells,
               "world_models": world_model_rows()}  # fmt: skip
+    result["findings"] = findings(cells, headline)
     result["summary"] = summary_lines(result)
     runner.write_json_atomic(os.path.join(RESULTS, "paper_claims.json"), result)
     text = markdown(result)

@@ -186,6 +186,24 @@ def holm(pvalues: Sequence[float]) -> list[float]:
     return adjusted.tolist()
 
 
+def benjamini_hochberg(pvalues: Sequence[float]) -> list[float]:
+    """Benjamini-Hochberg adjusted p-values (q-values) for one family (NaN entries stay NaN and
+    do not count as tests): reject where the adjusted value is below the level, the false
+    discovery rate held. The step-up: the i-th smallest of m gets min over j >= i of
+    m p_(j) / j, capped at 1."""
+    p = np.asarray(pvalues, np.float64)
+    tested = np.flatnonzero(~np.isnan(p))
+    adjusted = np.full(p.shape, np.nan)
+    m = tested.size
+    order = tested[np.argsort(p[tested], kind="stable")]
+    running = 1.0
+    for rank in range(m - 1, -1, -1):
+        i = order[rank]
+        running = min(running, m * p[i] / (rank + 1))
+        adjusted[i] = running
+    return adjusted.tolist()
+
+
 def significant(p: float, level: float = 0.05) -> bool:
     """``p`` below ``level`` (False for NaN: no test)."""
     return not math.isnan(p) and p < level

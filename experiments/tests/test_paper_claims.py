@@ -714,3 +714,51 @@ def test_a_piece_with_no_tables_writes_no_table(tmp_path, monkeypatch):
         "ensemble_size_smoke.md",
         "ensemble_size_smoke.png",
     ]
+
+
+def test_findings_count_each_effect_once_under_both_families():
+    """Three feedback cells, all significantly lower in ours, the paper claiming lower in one
+    and higher in two; one return cell untested; BH keeps one verdict Holm did not."""
+
+    def cell(metric, claimed, verdict, direction, p_holm, verdict_bh):
+        return {"metric": metric, "claimed": claimed, "verdict": verdict, "direction": direction,
+                "p_holm": p_holm, "verdict_bh": verdict_bh}  # fmt: skip
+
+    nan = float("nan")
+    cells = [
+        cell("feedback_norm", "lower", "reproduced", "lower", 0.01, "reproduced"),
+        cell("feedback_norm", "higher", "not reproduced", "lower", 0.02, "not reproduced"),
+        cell(
+            "feedback_norm",
+            "higher",
+            "inconclusive at this scale",
+            "unresolved",
+            0.09,
+            "not reproduced",
+        ),  # fmt: skip
+        cell("return", "higher", "not tested", None, nan, "not tested"),
+        cell("energy", "lower", "no claim in the paper", None, nan, "no claim in the paper"),
+    ]
+    headline = [{"claim": "MA adapts fast in few shots", "verdict": "inconclusive at this scale"}]
+    rows = {r["finding"]: r for r in paper_claims.findings(cells, headline)}
+    fb = rows["MA's feedback norm"]
+    assert (fb["cells"], fb["claims"], fb["tested"]) == (3, 3, 3)
+    assert (fb["reproduced_holm"], fb["other_way_holm"]) == (1, 1)
+    assert (fb["reproduced_bh"], fb["other_way_bh"]) == (1, 2)
+    assert (fb["ours_lower"], fb["paper_lower"], fb["paper_higher"]) == (2, 1, 1)
+    assert rows["MA's return"]["tested"] == 0 and rows["MA's energy"]["claims"] == 0
+    assert rows["adaptation"]["verdict"] == "inconclusive at this scale"
+    text = paper_claims._finding_text(fb)
+    assert text == ("MA's feedback norm: 3 tested, significantly lower in 2 (the paper's "
+                    "direction at those cells: lower in 1 and higher in 1)")  # fmt: skip
+
+
+def test_a_cell_measured_at_another_stage_prints_no_p_value():
+    ev = {"stage": 10_000, "ma": {"values": [1.0, 1.1, 0.9, 1.0, 1.05], "mean": 1.01, "n": 5},
+          "mbmpo": {"values": [2.0, 2.1, 1.9, 2.0, 2.05], "mean": 2.01, "n": 5}}  # fmt: skip
+    verdict, reason, _ = paper_claims.verdict("lower", ev, 200_000)
+    assert (
+        verdict == "inconclusive at this scale" and "no p-value" in reason and " p " not in reason
+    )
+    c = {"ours": ev, "stage": 200_000, "tests": paper_claims.tested(ev), "p_holm": float("nan")}
+    assert "no p-value" in paper_claims._tests_text(c) and ", p " not in paper_claims._tests_text(c)

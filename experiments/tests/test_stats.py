@@ -94,6 +94,20 @@ def test_holm_adjusts_step_down_and_keeps_untested_cells_out():
     assert out[0] == pytest.approx(0.04) and np.isnan(out[1]) and out[2] == pytest.approx(0.04)
 
 
+def test_benjamini_hochberg_against_a_hand_worked_example():
+    # p sorted: 0.005, 0.01, 0.03, 0.04 (m = 4); m p / rank: 0.02, 0.02, 0.04, 0.04; the
+    # step-up keeps the running minimum from the largest down: 0.02, 0.02, 0.04, 0.04.
+    p = [0.01, 0.04, 0.03, 0.005]
+    assert stats.benjamini_hochberg(p) == pytest.approx([0.02, 0.04, 0.04, 0.02])
+    # the same four under Holm: 0.02, 0.03, 0.06, 0.06 by rank; BH rejects all four at 5%,
+    # Holm only two (the false discovery rate is a weaker promise than the family-wise error)
+    assert stats.holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    # a large p-value keeps its own: 0.9 * 2 / 2 = 0.9; the NaN is no test (m = 2)
+    out = stats.benjamini_hochberg([0.9, float("nan"), 0.01])
+    assert out[0] == pytest.approx(0.9) and np.isnan(out[1]) and out[2] == pytest.approx(0.02)
+    assert stats.benjamini_hochberg([]) == []
+
+
 def test_sign_flips_and_spreads():
     assert stats.sign_flip_p([1.0, 2.0, 3.0, 4.0, 5.0]) == pytest.approx(2 / 32)
     assert stats.sign_flip_p([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]) == pytest.approx(2 / 64)
