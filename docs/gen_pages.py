@@ -84,6 +84,12 @@ def claims_section(claims: dict[str, Any]) -> list[str]:
                    f"{f['reproduced_holm']} / {f['other_way_holm']}",
                    f"{f['reproduced_bh']} / {f['other_way_bh']}"]
                   for f in claims.get("findings", []) if "tested" in f]), "",
+           "### How the paper's +- is read", "",
+           "Whether a cell is a claim depends on reading the paper's \"+-\"; the verdicts use "
+           "the main text's (one standard deviation over 10 seeds; Table S3's 5 for MAMBA).", "",
+           table(["reading", "claim cells (Tables 1, S1-S8)", "claim rows (S3, S4)"],
+                 [[r["reading"], r["table_cells"], r["world_model_rows"]]
+                  for r in claims.get("sensitivity", {}).get("rows", [])]), "",
            "### Headline claims", "",
            table(["claim", "paper", "ours", "verdict", "why"],
                  [[h["claim"], h["paper"], h["ours"], h["verdict"], h["reason"]]

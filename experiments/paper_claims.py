@@ -156,14 +156,34 @@ def tested(ev: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def paper_claim(paper_ma: tuple[float, float], paper_base: tuple[float, float]
-                ) -> tuple[str, float]:  # fmt: skip
+def paper_claim(paper_ma: tuple[float, float], paper_base: tuple[float, float],
+                seeds: int = PAPER_SEEDS) -> tuple[str, float]:  # fmt: skip
     """(the paper's direction of MA - MB-MPO, the Welch p-value of its own difference from
-    its means, standard deviations and ``PAPER_SEEDS`` seeds per arm)."""
+    its means, standard deviations and ``seeds`` seeds per arm)."""
     claimed = "higher" if paper_ma[0] > paper_base[0] else "lower"
     return claimed, stats.welch_p_from_stats(
-        paper_ma[0], paper_ma[1], PAPER_SEEDS, paper_base[0], paper_base[1], PAPER_SEEDS
+        paper_ma[0], paper_ma[1], seeds, paper_base[0], paper_base[1], seeds
     )
+
+
+# How the paper's "+-" may be read: its main text says one standard deviation over 10 seeds
+# (the reading every verdict uses); Table S3 says 5 seeds; some values (Hopper 2825 +- 1.25) look
+# more like standard errors. name -> (seeds, factor that turns "+-" into a standard deviation).
+READINGS = {"SD, n = 10 (the main text)": (10, 1.0), "SD, n = 5": (5, 1.0),
+            "standard error, n = 10": (10, math.sqrt(10))}  # fmt: skip
+
+
+def claim_under_readings(paper_ma: tuple[float, float], paper_base: tuple[float, float],
+                         seeds: int = PAPER_SEEDS) -> dict[str, bool]:  # fmt: skip
+    """Whether the paper's difference is a claim (Welch p < 5%) under each reading of "+-";
+    the first reading uses the table's own seed count."""
+    out = {}
+    for i, (name, (n, factor)) in enumerate(READINGS.items()):
+        n = seeds if i == 0 else n
+        p = stats.welch_p_from_stats(paper_ma[0], paper_ma[1] * factor, n, paper_base[0],
+                                     paper_base[1] * factor, n)  # fmt: skip
+        out[name] = stats.significant(p, LEVEL)
+    return out
 
 
 def _sign(diff: float) -> str:
@@ -256,6 +276,7 @@ def table_claims(srcs: list[dict]) -> list[dict[str, Any]]:
                 "env": env, "phase": phase, "stage": stage, "alpha": alpha, "metric": m,
                 "paper_mbmpo": base[m], "paper_ma": row[m], "claimed": claimed,
                 "paper_p": paper_p, "ours": ev, "p": p, "tests": t,
+                "claim_readings": claim_under_readings(row[m], base[m]),
             })  # fmt: skip
     corrected(claims, lambda c: (c["env"], c["phase"], c["stage"], c["alpha"]))
     for c, q in zip(claims, stats.benjamini_hochberg([c["p"] for c in claims]), strict=True):
@@ -305,6 +326,41 @@ def findings(cells: list[dict[str, Any]], headline: list[dict[str, Any]]) -> lis
                                                          for r in out):  # fmt: skip
                 out.append({"finding": name, "claim": h["claim"], "verdict": h["verdict"]})
     return out
+
+
+def sensitivity(cells: list[dict[str, Any]], world: list[dict[str, Any]]) -> dict[str, Any]:
+    """How many table cells and world-model rows are claims under each reading of "+-", and
+    which cells' claim status (so possibly their verdict) changes with the reading."""
+    rows = [{"reading": name,
+             "table_cells": sum(c["claim_readings"][name] for c in cells),
+             "world_model_rows": sum(r["claim_readings"][name] for r in world
+                                     if "claim_readings" in r)}
+            for name in READINGS]  # fmt: skip
+    changing = [f"{c['env']} {c['phase'].replace('_', '-')} {xt.stage_label(c['stage'])} "
+                f"alpha {c['alpha']:g} {c['metric']}"
+                + (f" (now {c['verdict']})" if c["verdict"] in ("reproduced", "not reproduced")
+                   else "")
+                for c in cells if len(set(c["claim_readings"].values())) > 1]  # fmt: skip
+    changing += [f"{r['table']} {xt.stage_label(r['stage'])} alpha {r['alpha']:g}" for r in world
+                 if len(set(r.get("claim_readings", {True: 1}).values())) > 1]  # fmt: skip
+    decisive = [c for c in cells if c["verdict"] in ("reproduced", "not reproduced")]
+    sensitive = [c for c in decisive if len(set(c["claim_readings"].values())) > 1]
+    return {"rows": rows, "changing": changing, "decisive": len(decisive),
+            "decisive_sensitive": len(sensitive)}  # fmt: skip
+
+
+def sensitivity_lines(sens: dict[str, Any]) -> list[str]:
+    """The sensitivity table (Markdown) and the cells whose claim status changes."""
+    lines = ["| reading of the paper's +- | claim cells (Tables 1, S1-S8) | claim rows (S3, S4) |",
+             "|---|---|---|"]  # fmt: skip
+    lines += [f"| {r['reading']} | {r['table_cells']} | {r['world_model_rows']} |"
+              for r in sens["rows"]]  # fmt: skip
+    changing = sens["changing"]
+    lines += ["", f"{len(changing)} cells or rows change between claim and no claim across the "
+              f"readings, {sens['decisive_sensitive']} of the {sens['decisive']} decisive verdicts "
+              "among them (all are marked *reading-sensitive* in the cell table)"
+              + (": " + "; ".join(changing) if changing else "") + "."]  # fmt: skip
+    return lines
 
 
 def findings_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -752,6 +808,10 @@ def reading_study() -> list[str]:
     return lines or ["- No reading study result yet: `python experiments/reading_study.py`."]
 
 
+# Seeds per arm of the world-model tables: S3's caption says 5; S4's says none (the main text's 10).
+WORLD_MODEL_SEEDS = {"mamba_humanoid_dir": 5, "dreamer_cheetah_run": PAPER_SEEDS}
+
+
 def world_model_rows() -> list[dict[str, Any]]:
     """Tables S3 (MAMBA, Humanoid-dir) and S4 (DreamerV3, cheetah_run), each row with its
     status: ours where a run of the agent reached the row's stage, else how far it got."""
@@ -760,6 +820,18 @@ def world_model_rows() -> list[dict[str, Any]]:
     rows = []
     for (table, step, alpha), number in paper_numbers.WORLD_MODELS.items():
         row = {"table": table, "stage": step, "alpha": alpha, "paper": number}
+        if alpha:  # a claim only where the paper's own difference from alpha 0 is significant
+            base = paper_numbers.WORLD_MODELS[(table, step, 0.0)]
+            seeds = WORLD_MODEL_SEEDS[table]
+            claimed, paper_p = paper_claim(number, base, seeds)
+            row.update(claimed=claimed, paper_p=paper_p,
+                       claim_readings=claim_under_readings(number, base, seeds))  # fmt: skip
+            if not stats.significant(paper_p, LEVEL):
+                row.update(status="no claim in the paper", ours="-",
+                           reason=f"the paper's own difference from alpha 0 is not significant "
+                           f"(Welch p = {paper_p:.2g}, n = {seeds})")  # fmt: skip
+                rows.append(row)
+                continue
         if table.startswith("mamba"):
             row.update(status="not tested", ours="-",
                        reason="MAMBA is built (--algo mamba; CPU evidence on point_robot in "
@@ -825,6 +897,11 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
     ]  # fmt: skip
 
 
+def _sensitive(c: dict[str, Any]) -> str:
+    """ " (reading-sensitive)" where another reading of "+-" changes whether the cell is a claim."""
+    return " (reading-sensitive)" if len(set(c.get("claim_readings", {}).values())) > 1 else ""
+
+
 def _finding_text(f: dict[str, Any]) -> str:
     """One finding's tested cells in words: where our tests are significant, and which way
     the paper claimed at those cells."""
@@ -875,6 +952,12 @@ def markdown(result: dict[str, Any]) -> str:
              "per-row Holm each table row (one env, phase, stage and alpha) is a family; under "
              "Benjamini-Hochberg every tested cell of every table is one family.", "",
              *findings_lines(result["findings"]), "",
+             "## How the paper's +- is read", "",
+             "A cell is a claim of the paper where its own difference is significant by its "
+             "numbers. The main text gives \"+-\" as one standard deviation over 10 seeds and "
+             "every verdict uses that (Table S3's 5 seeds for MAMBA); the same counts under the "
+             "other readings the text allows:", "",
+             *sensitivity_lines(result["sensitivity"]), "",
              "## Headline claims", "", "| claim | paper | ours | verdict | reason |",
              "|---|---|---|---|---|"]  # fmt: skip
     for c in result["headline"]:
@@ -908,7 +991,7 @@ def markdown(result: dict[str, Any]) -> str:
                      f"{xt.stage_label(c['stage'])} | {c['alpha']:g} | {c['metric']} | "
                      f"{xt.paper_cell(c['paper_mbmpo'])} | {xt.paper_cell(c['paper_ma'])} | "
                      f"{c['claimed']} ({c['paper_p']:.2g}) | " + " | ".join(ours)
-                     + f" | {c['verdict']} | {c['reason']} |")  # fmt: skip
+                     + f" | {c['verdict']}{_sensitive(c)} | {c['reason']} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -944,6 +1027,7 @@ def main() -> None:
               "reading": reading_study(), "cells": cells,
               "world_models": world_model_rows()}  # fmt: skip
     result["findings"] = findings(cells, headline)
+    result["sensitivity"] = sensitivity(cells, result["world_models"])
     result["summary"] = summary_lines(result)
     runner.write_json_atomic(os.path.join(RESULTS, "paper_claims.json"), result)
     text = markdown(result)

@@ -762,3 +762,25 @@ def test_a_cell_measured_at_another_stage_prints_no_p_value():
     )
     c = {"ours": ev, "stage": 200_000, "tests": paper_claims.tested(ev), "p_holm": float("nan")}
     assert "no p-value" in paper_claims._tests_text(c) and ", p " not in paper_claims._tests_text(c)
+
+
+def test_a_difference_is_a_claim_under_some_readings_of_plus_minus_only():
+    """10 +- 2 against 8 +- 2: t = 2.24 with 10 seeds each (p 0.04, a claim); 1.58 with 5
+    (p 0.15); as standard errors over 10 seeds the standard deviations are 6.3 (t 0.71)."""
+    under = paper_claims.claim_under_readings
+    readings = under((10.0, 2.0), (8.0, 2.0))
+    assert list(readings.values()) == [True, False, False]
+    cells = [{"env": "hopper", "phase": "meta_training", "stage": 10_000, "alpha": 1.0,
+              "metric": "return", "verdict": "reproduced", "claim_readings": readings},
+             {"env": "hopper", "phase": "meta_training", "stage": 10_000, "alpha": 1.0,
+              "metric": "energy", "verdict": "inconclusive at this scale",
+              "claim_readings": under((20.0, 1.0), (8.0, 1.0))}]  # fmt: skip
+    world = [{"table": "mamba_humanoid_dir", "stage": 2_500_000, "alpha": 0.05,
+              "claim_readings": under((759, 231), (467, 288), 5)}]  # fmt: skip
+    sens = paper_claims.sensitivity(cells, world)
+    assert [r["table_cells"] for r in sens["rows"]] == [2, 1, 1]
+    assert [r["world_model_rows"] for r in sens["rows"]] == [0, 0, 0]  # p 0.12 with 5 seeds
+    assert sens["decisive_sensitive"] == 1 and len(sens["changing"]) == 1
+    assert sens["changing"][0].endswith("return (now reproduced)")
+    assert paper_claims._sensitive(cells[0]) == " (reading-sensitive)"
+    assert paper_claims._sensitive(cells[1]) == ""
