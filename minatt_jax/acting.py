@@ -129,10 +129,24 @@ def unroll(
     probe_gain: bool = False,
     record_qpos: bool = False,
 ) -> Trajectory:
-    """``steps`` steps of ``policy`` from ``state``; ``key`` (split per step) feeds ``act``
-    (None for deterministic policies); ``probe_feedback`` records ||du/dx||_F^2 per step and
-    ``probe_gain`` the Jacobian du/dx itself (for a recurrent policy, with respect to this step's
-    input at the memory it acts with); ``record_qpos`` the simulator's positions (to render)."""
+    """Rolls a policy out for a fixed number of steps (one ``lax.scan``).
+
+    Args:
+        env: the environment (``reset``/``step``; a ``MetaEpisode`` too).
+        policy: a ``Policy`` or ``RecurrentPolicy`` (``deterministic``, ``stochastic``, a
+            family's ``deterministic(params, normalizer)``).
+        state: the environment state to start from (``env.reset(key, task)``).
+        steps: steps to take (static); steps after the episode's first ``done`` are taken but
+            masked by ``alive``.
+        key: split per step for ``act``; None for deterministic policies.
+        probe_feedback: record ||du/dx||_F^2 at each step (exact, ``jacfwd``).
+        probe_gain: record the Jacobian du/dx itself (for a recurrent policy, with respect to
+            this step's input at the memory it acts with).
+        record_qpos: record the simulator's positions before each step (to render).
+
+    Returns:
+        A ``Trajectory``, one row per step.
+    """
     recurrent = isinstance(policy, RecurrentPolicy)
     first = policy.at(policy.memory) if recurrent else policy
     if (probe_feedback or probe_gain) and first.control is None:
@@ -289,13 +303,26 @@ def collect_step(
 ) -> CollectStep:
     """Steps every environment, ends episodes (termination or the step limit) and resets them.
 
+    Args:
+        env: the environment.
+        env_state: the states of ``num_envs`` environments (a leading axis).
+        action: their actions, (num_envs, act_dim).
+        episode_return: each environment's return so far.
+        episode_length: each environment's steps so far.
+        max_episode_steps: the step limit that ends (and bootstraps) an episode.
+        reset: ``reset(key)`` -> fresh states for all environments.
+        key: the random key of the resets.
+        members_axis: the name of a population's vmapped axis (``reset_ended``).
+
+    Returns:
+        A ``CollectStep``: the transitions to store, the next states (ended ones reset), the
+        episode bookkeeping and which steps were finite.
+
     ``reset(key)`` returns fresh states for all environments (new tasks included); it runs
     only when some episode ended (``reset_ended``), so resets cost nothing otherwise. Only
     termination sets ``terminal`` (time limits are bootstrapped). A simulator state that went
     non-finite (NaN or inf observation or reward) ends its episode and is reset; ``finite``
     marks it so the caller does not learn from it, and its return is not counted.
-
-    ``members_axis``: the name of a population's vmapped axis (``reset_ended``).
     """
     next_state, length, finite, ended = step_envs(env, env_state, action, episode_length,
                                                   max_episode_steps)  # fmt: skip

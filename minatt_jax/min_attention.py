@@ -150,16 +150,35 @@ def _scaled(term: jax.Array, weight: jax.Array | None) -> jax.Array:
 
 
 def control_jacobian(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
-    """du/dx (n, act_dim, obs_dim) at each state of a batch ``obs`` (n, obs_dim), exactly."""
+    """The control law's Jacobian at each state of a batch, exactly.
+
+    Args:
+        u: the control law ``u(params, obs)``.
+        params: its parameters.
+        obs: states, (n, obs_dim).
+        mode: ``"jacfwd"`` (cheaper for few inputs) or ``"jacrev"``.
+
+    Returns:
+        du/dx, (n, act_dim, obs_dim).
+    """
     jac = jax.jacfwd if mode == "jacfwd" else jax.jacrev
     return jax.vmap(jac(lambda x: u(params, x)))(obs)
 
 
 def feedback_exact(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfwd") -> jax.Array:
-    """Per-state ||du/dx||_F^2 for a batch ``obs`` (n, obs_dim), exactly (jacfwd or jacrev).
+    """Per-state ||du/dx||_F^2, exactly.
 
     The one function that computes the feedback norm: the penalty, evaluation, the analysis
     and the report all call it.
+
+    Args:
+        u: the control law ``u(params, obs)``.
+        params: its parameters.
+        obs: states, (n, obs_dim).
+        mode: ``"jacfwd"`` or ``"jacrev"``.
+
+    Returns:
+        (n,) squared Frobenius norms.
     """
     return jnp.sum(jnp.square(control_jacobian(u, params, obs, mode)), axis=(-2, -1))
 
@@ -167,7 +186,19 @@ def feedback_exact(u: ControlFn, params: Any, obs: jax.Array, mode: str = "jacfw
 def feedback_hutchinson(
     u: ControlFn, params: Any, obs: jax.Array, key: jax.Array, probes: int = 1
 ) -> jax.Array:
-    """Per-state unbiased estimate of ||du/dx||_F^2 from ``probes`` Rademacher VJPs."""
+    """Per-state unbiased estimate of ||du/dx||_F^2 from Rademacher vector-Jacobian products
+    (E[||v^T J||^2] = ||J||_F^2 for v with independent +-1 entries).
+
+    Args:
+        u: the control law ``u(params, obs)``.
+        params: its parameters.
+        obs: states, (n, obs_dim).
+        key: the probes' random key.
+        probes: probes per state (the estimate's variance falls as 1/probes).
+
+    Returns:
+        (n,) estimates.
+    """
 
     def batch_u(x: jax.Array) -> jax.Array:
         return jax.vmap(lambda xi: u(params, xi))(x)
@@ -185,7 +216,18 @@ def feedback_hutchinson(
 def feedback_term(
     config: MAConfig, u: ControlFn, params: Any, obs: jax.Array, key: jax.Array
 ) -> jax.Array:
-    """Mean ||du/dx||_F^2 over the batch (its leading ``subsample`` states), as configured."""
+    """The feedback term: mean ||du/dx||_F^2 over a batch, by the configured estimator.
+
+    Args:
+        config: ``MAConfig`` (``estimator``, ``probes``, ``subsample``).
+        u: the control law ``u(params, obs)``.
+        params: the policy parameters (differentiated).
+        obs: a batch of policy inputs, (n, obs_dim); the leading ``subsample`` are used.
+        key: the random key of the Hutchinson probes.
+
+    Returns:
+        A scalar.
+    """
     if 0 < config.subsample < obs.shape[0]:
         obs = obs[: config.subsample]
     return jnp.mean(_feedback_per_state(config, u, params, obs, key))
@@ -479,7 +521,20 @@ class Regularizer(NamedTuple):
 def make_regularizer(
     u: ControlFn, ma_config: MAConfig, caps_config: CAPSConfig | None = None
 ) -> Regularizer:
-    """The one place a learner gets its MA and CAPS penalties from (see ``Regularizer``)."""
+    """The one place a learner gets its MA and CAPS penalties from (see ``Regularizer``).
+
+    Args:
+        u: the control law ``u(params, obs) -> action`` the penalties differentiate.
+        ma_config: the run's ``MAConfig`` (its placement resolved by ``config.resolve``).
+        caps_config: CAPS's settings, or None (off).
+
+    Returns:
+        A ``Regularizer``: its ``apply`` gives every penalty piece for one batch, placed as
+        ``ma.placement`` says.
+
+    Raises:
+        ValueError: MA is on and its placement is unresolved.
+    """
     caps_config = caps_config or CAPSConfig()
     if ma_config.active and ma_config.placement is None:
         raise ValueError("ma.placement is unresolved: config.resolve fills in the agent's")

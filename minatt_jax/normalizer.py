@@ -20,11 +20,29 @@ class Normalizer:
 
 
 def init_normalizer(dim: int) -> Normalizer:
+    """Empty running statistics.
+
+    Args:
+        dim: the observation's size.
+
+    Returns:
+        A ``Normalizer`` with mean 0, variance 1 and count 0 (normalizing is then the identity
+        up to ``EPS``).
+    """
     return Normalizer(jnp.zeros((dim,)), jnp.ones((dim,)), jnp.zeros(()))
 
 
 def update(norm: Normalizer, batch: jax.Array) -> Normalizer:
-    """Adds a batch (n, dim) of observations to the running statistics."""
+    """Adds a batch of observations to the running statistics (Chan's parallel update: exact
+    for any batch sizes).
+
+    Args:
+        norm: the statistics so far.
+        batch: observations, (n, dim).
+
+    Returns:
+        The statistics with the batch included.
+    """
     n = batch.shape[0]
     b_mean, b_var = jnp.mean(batch, 0), jnp.var(batch, 0)
     total = norm.count + n
@@ -35,15 +53,32 @@ def update(norm: Normalizer, batch: jax.Array) -> Normalizer:
 
 
 def scale_reward(return_stats: Normalizer | None, reward: jax.Array) -> jax.Array:
-    """``reward / sqrt(var + EPS)`` with var the running variance of the discounted return
-    (``SACConfig.normalize_reward``); unchanged when ``return_stats`` is None (off)."""
+    """Scales rewards by the running standard deviation of the discounted return
+    (``SACConfig.normalize_reward``).
+
+    Args:
+        return_stats: the discounted return's statistics (1-dim); None when scaling is off.
+        reward: rewards of any shape.
+
+    Returns:
+        ``reward / sqrt(var + EPS)``, or ``reward`` unchanged when ``return_stats`` is None.
+    """
     if return_stats is None:
         return reward
     return reward / jnp.sqrt(return_stats.var[0] + EPS)
 
 
 def normalize(norm: Normalizer, obs: jax.Array, enabled: bool) -> jax.Array:
-    """(obs - mean) / std, clipped to [-10, 10]; identity when ``enabled`` is False."""
+    """Normalizes observations by the running statistics.
+
+    Args:
+        norm: the statistics.
+        obs: observations, (..., dim).
+        enabled: False returns ``obs`` unchanged (a static switch: no trace of the statistics).
+
+    Returns:
+        ``(obs - mean) / sqrt(var + EPS)``, clipped to [-CLIP, CLIP].
+    """
     if not enabled:
         return obs
     return jnp.clip((obs - norm.mean) / jnp.sqrt(norm.var + EPS), -CLIP, CLIP)

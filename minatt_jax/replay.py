@@ -42,7 +42,16 @@ class ReplayBuffer:
 
 
 def init_buffer(capacity: int, obs_dim: int, act_dim: int) -> ReplayBuffer:
-    """An empty buffer."""
+    """An empty buffer, its arrays allocated once at full size (a fixed shape for ``jit``).
+
+    Args:
+        capacity: transitions it holds; the oldest are overwritten once full.
+        obs_dim: observation size.
+        act_dim: action size.
+
+    Returns:
+        A ``ReplayBuffer`` with ``size`` and ``position`` 0.
+    """
     data = Transitions(
         obs=jnp.zeros((capacity, obs_dim), jnp.float32),
         action=jnp.zeros((capacity, act_dim), jnp.float32),
@@ -55,7 +64,15 @@ def init_buffer(capacity: int, obs_dim: int, act_dim: int) -> ReplayBuffer:
 
 
 def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
-    """Appends a batch (overwriting the oldest transitions once full)."""
+    """Appends a batch, overwriting the oldest transitions once full (a ring).
+
+    Args:
+        buffer: the buffer.
+        batch: ``Transitions`` with a leading batch axis (n <= capacity).
+
+    Returns:
+        The buffer with the batch written and ``position``/``size`` advanced.
+    """
     n = batch.reward.shape[0]
     idx = (buffer.position + jnp.arange(n)) % buffer.capacity
     data = jax.tree.map(lambda store, new: store.at[idx].set(new), buffer.data, batch)
@@ -67,7 +84,16 @@ def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
 
 
 def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Transitions:
-    """``batch_size`` transitions drawn uniformly (with replacement) from the valid ones."""
+    """Draws transitions uniformly, with replacement, from those written.
+
+    Args:
+        buffer: the buffer (an empty one returns its zero rows).
+        key: the random key.
+        batch_size: how many to draw (static).
+
+    Returns:
+        ``Transitions`` with a leading axis of ``batch_size``.
+    """
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(buffer.size, 1))
     return jax.tree.map(lambda x: x[idx], buffer.data)
 

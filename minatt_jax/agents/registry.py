@@ -125,8 +125,16 @@ _SPECS: dict[str, AgentSpec] = {}
 
 
 def register(spec: AgentSpec) -> AgentSpec:
-    """Registers ``spec`` under its name (a later registration replaces an earlier one; a
-    configuration refuses a group named like a common setting)."""
+    """Registers an agent under its name, so ``--algo NAME`` and ``make_config(algo=NAME)``
+    find it (a later registration replaces an earlier one; a configuration refuses a settings
+    group named like a common setting).
+
+    Args:
+        spec: the agent's ``AgentSpec``.
+
+    Returns:
+        ``spec`` itself, so that a module can write ``SPEC = register(AgentSpec(...))``.
+    """
     _SPECS[spec.name] = spec
     return spec
 
@@ -149,8 +157,14 @@ def names() -> list[str]:
 
 
 def import_plugin(module: str) -> None:
-    """Imports a plugin module (which registers its agents or environments); PluginError, one
-    line, when it cannot be imported."""
+    """Imports a plugin module, which registers its agents or environments as it is imported.
+
+    Args:
+        module: a dotted module name on the Python path.
+
+    Raises:
+        PluginError: the module cannot be imported (one line).
+    """
     try:
         importlib.import_module(module)
     except ImportError as e:
@@ -159,8 +173,17 @@ def import_plugin(module: str) -> None:
 
 
 def load_plugins(modules: Iterable[str] = ()) -> list[str]:
-    """Imports the plugin ``modules`` and those named (comma-separated) in the environment
-    variable ``MINATT_JAX_PLUGINS``; returns the modules imported."""
+    """Imports plugin modules: the given ones and those named in ``MINATT_JAX_PLUGINS``.
+
+    Args:
+        modules: dotted module names (the command line's ``--plugin``).
+
+    Returns:
+        The modules imported, each once, in order.
+
+    Raises:
+        PluginError: a module cannot be imported.
+    """
     from_env = [m.strip() for m in os.environ.get(PLUGINS_VARIABLE, "").split(",")]
     loaded = []
     for module in [*modules, *from_env]:
@@ -178,8 +201,19 @@ def load_env_plugins() -> None:
 
 
 def get(name: str, module: str = "") -> AgentSpec:
-    """The spec registered under ``name``, looked up as the module docstring says; ``module``
-    is where a run recorded its agent came from. UnknownAgentError (one line) when none is."""
+    """The agent registered under a name, looked up as the module docstring says (registered,
+    built in, entry points, the recorded module).
+
+    Args:
+        name: the agent's name (``--algo``).
+        module: the module a run's ``config.json`` records its agent came from ("" for none).
+
+    Returns:
+        The ``AgentSpec``.
+
+    Raises:
+        UnknownAgentError: no agent of that name can be found (one line naming ``--plugin``).
+    """
     if name not in _SPECS and name in BUILTIN:
         importlib.import_module(BUILTIN[name])
     if name not in _SPECS:
