@@ -134,8 +134,20 @@ def evidence(srcs: list[dict], env: str, phase: str, stage: int, alpha: float,
             continue
         rank = (int(key), min(base["n"], ma["n"]), -order)
         found.append((rank, {"source": src["tag"], "stage": int(key),
+                             "records": has_records(src["tag"], env),
                              "mbmpo": _resummarized(base), "ma": _resummarized(ma)}))  # fmt: skip
     return max(found, key=lambda f: f[0])[1] if found else None
+
+
+RECORDS = os.path.join(HERE, "records", "meta_training")
+
+
+def has_records(tag: str, env: str) -> bool:
+    """Whether the per-run records of ``env``'s members under source ``tag`` are committed
+    (``experiments/records/meta_training/<tag>/``): a cell without them is carried from a
+    summary and cannot be recomputed from raw records."""
+    folder = os.path.join(RECORDS, tag)
+    return os.path.isdir(folder) and any(f"_env{env}_" in name for name in os.listdir(folder))
 
 
 def _resummarized(arm: dict[str, Any]) -> dict[str, Any]:
@@ -897,6 +909,25 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
     ]  # fmt: skip
 
 
+def _provenance_text(result: dict[str, Any]) -> str:
+    """Which measured cells trace to committed per-run records and which are carried from a
+    summary file alone."""
+    measured = [c for c in result["cells"] if c["ours"]]
+    carried = sorted({f"{c['env']} from {c['ours']['source'].split(' (')[0]}"
+                      for c in measured if not c["ours"].get("records", True)})  # fmt: skip
+    text = (
+        f"{sum(c['ours'].get('records', True) for c in measured)} of the {len(measured)} "
+        "measured cells trace to per-run records committed under `experiments/records/`"
+    )
+    if carried:
+        text += (
+            f"; the cells of {' and of '.join(carried)} are carried from a summary file alone "
+            "(marked *summary only*): retrained with `--records experiments/records` they "
+            "would be recomputable"
+        )
+    return text + "."
+
+
 def _sensitive(c: dict[str, Any]) -> str:
     """ " (reading-sensitive)" where another reading of "+-" changes whether the cell is a claim."""
     return " (reading-sensitive)" if len(set(c.get("claim_readings", {}).values())) > 1 else ""
@@ -944,7 +975,7 @@ def markdown(result: dict[str, Any]) -> str:
              "5% at the paper's stage with >= 5 seeds per arm; otherwise **inconclusive at this "
              "scale** (the reason says which: seeds, stage or the test) or **not tested**. "
              "Standard deviations are sample ones (ddof 1).", "", "Sources: "
-             + ("; ".join(result["sources"]) or "none"), "",
+             + ("; ".join(result["sources"]) or "none") + ". " + _provenance_text(result), "",
              "## Findings", "",
              "Each finding once, with the cells that measure it. A cell is tested only at the "
              "paper's own stage (the paper's \"epoch: 10K\" read as 10K env steps) with >= 5 "
@@ -982,8 +1013,9 @@ def markdown(result: dict[str, Any]) -> str:
               "|---" * 14 + "|"]  # fmt: skip
     for c in result["cells"]:
         ev = c["ours"]
+        summary_only = "" if not ev or ev.get("records", True) else " (summary only: no records)"
         ours = (
-            [xt.cell(ev["mbmpo"]), xt.cell(ev["ma"]), _tests_text(c), ev["source"]]
+            [xt.cell(ev["mbmpo"]), xt.cell(ev["ma"]), _tests_text(c), ev["source"] + summary_only]
             if ev
             else ["-"] * 4
         )
