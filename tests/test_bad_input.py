@@ -208,3 +208,18 @@ def test_the_python_api_refuses_an_evaluation_of_no_episodes(paths, episodes):
 
     with pytest.raises(runner.RunError, match="episodes must be a positive integer"):
         api.load_run(str(paths["RUN"])).evaluate(episodes=episodes)
+
+
+def test_meta_test_into_a_read_only_run_is_refused_before_any_work(paths, monkeypatch, capsys):
+    """A run directory the user cannot write into (simulated: tests may run as root, whom
+    permissions do not stop) is refused at once, not after the meta-test's minutes of work."""
+    import os as os_module
+
+    real = os_module.access
+    monkeypatch.setattr(os_module, "access", lambda p, mode: False if p == paths["RUN"]
+                        and mode == os_module.W_OK else real(p, mode))  # fmt: skip
+    before = digest(paths["ROOT"])
+    status = main(["meta-test", paths["RUN"], "--variant", "mass"])
+    err = capsys.readouterr().err
+    assert status == 2 and len(err.strip().splitlines()) == 1
+    assert "not writable; give --out DIR" in err and digest(paths["ROOT"]) == before
