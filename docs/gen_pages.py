@@ -226,7 +226,53 @@ def results_page() -> str:
             "by magnitude.",
             "The full verdict table with each cell's reasoning is "
             + repo_link("experiments/results/paper_claims.md") + ".", ""]  # fmt: skip
-    return "\n".join(head + claims_section(claims) + [""] + study_sections()) + "\n"
+    FIGURES["figures/claims_by_finding.png"] = lambda path: findings_figure(claims, path)
+    figure = [
+        "![each tested cell's difference, by finding](figures/claims_by_finding.png)",
+        "",
+        "*Every cell tested at the paper's stage: MA's difference from MB-MPO relative to "
+        "MB-MPO's mean, with Welch's 95% interval, grouped by finding; the marker says "
+        "the verdict under per-row Holm, the colour which way the paper claims.*",
+        "",
+    ]
+    return "\n".join(head + figure + claims_section(claims) + [""] + study_sections()) + "\n"
+
+
+def findings_figure(claims: dict[str, Any], path: str) -> None:
+    """The tested cells' relative differences with their Welch intervals, one row per cell,
+    grouped by finding: how large MA's effects are and how they line up with the verdicts."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = []
+    for metric in ("feedback_norm", "return", "energy", "feedforward_norm"):
+        for c in claims["cells"]:
+            t, ours = c.get("tests"), c.get("ours") or {}
+            if c["metric"] != metric or not t or ours.get("stage") != c["stage"]:
+                continue
+            if c["verdict"] == "no claim in the paper" or math.isnan(c.get("p_holm", math.nan)):
+                continue
+            scale = abs(ours["mbmpo"]["mean"]) or 1.0
+            rows.append((metric, c, t["diff"] / scale, [v / scale for v in t["welch_ci"]]))
+    fig, ax = plt.subplots(figsize=(7.5, 0.2 * len(rows) + 1.2), layout="constrained")
+    marks = {"reproduced": "o", "not reproduced": "x"}
+    for i, (_, c, diff, (low, high)) in enumerate(rows):
+        color = "tab:green" if c["claimed"] == "lower" else "tab:purple"
+        ax.plot([low, high], [i, i], color=color, lw=1.2)
+        ax.plot(diff, i, marks.get(c["verdict"], "."), color=color, ms=5)
+    ax.axvline(0, color="black", lw=0.6)
+    ax.set_yticks(range(len(rows)), [f"{m} {c['env']} {c['phase'][5:9]} a{fmt(c['alpha'])}"
+                                     for m, c, _, _ in rows], fontsize=6)  # fmt: skip
+    ax.invert_yaxis()
+    ax.set_xlabel("(MA - MB-MPO) / |MB-MPO mean|, Welch 95% interval", fontsize=8)
+    ax.set_title("tested cells by finding (o reproduced, x other way, . inconclusive; green: "
+                 "paper claims lower, purple: higher)", fontsize=7)  # fmt: skip
+    ax.set_xlim(-1.5, 1.5)
+    ax.grid(alpha=0.3)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def benchmark_page() -> str:
