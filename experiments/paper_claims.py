@@ -28,6 +28,7 @@ import glob
 import json
 import math
 import os
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -575,11 +576,15 @@ def cost_claims() -> list[dict[str, Any]]:
                     f"temporal term, {where[every['config']['placement']]}"
                     f"{beside(default_every, every)}; `python benchmarks/sac_update.py`, "
                     "2-core CPU)",
-                    "verdict": "reproduced" if 1.05 <= c <= 1.17 else "not reproduced",
-                    "reason": "one benchmark run (7 rounds of 200 updates)"})  # fmt: skip
+                    "verdict": "not tested",
+                    "reason": "not as the paper states it: the paper's figure is the Jacobian "
+                    "term's share of an MB-MPO update; this times SAC's update with the temporal "
+                    "term as well (one benchmark run, 7 rounds of 200 updates)"})  # fmt: skip
+    paper_setting = os.path.join(BENCHMARKS, "ma_overhead_mbmpo.json")
     overhead = os.path.join(BENCHMARKS, "ma_overhead.json")
-    if os.path.exists(overhead):
-        out.append(training_share_claim(_read(overhead)))
+    if os.path.exists(paper_setting) or os.path.exists(overhead):
+        out.append(training_share_claim(_read(paper_setting if os.path.exists(paper_setting)
+                                              else overhead)))  # fmt: skip
     else:
         out.append(
             {
@@ -611,11 +616,26 @@ def training_share_claim(bench: dict[str, Any]) -> dict[str, Any]:
             f"{bench['env_steps']} steps after a {bench['warmup_steps']}-step warm-up, median "
             f"of {len(amortized['runs'])} interleaved runs; `{bench['command']}`, "
             f"{where}")  # fmt: skip
-    return {"claim": "Updating the attention cost every 10 steps makes the overhead < 2%",
-            "paper": "< 2% of training time", "ours": ours,
-            "verdict": "reproduced" if share < 2 else "not reproduced",
-            "reason": "share of the training loop's wall time (simulation, updates, "
-                      "evaluation, checkpoints), one benchmark run"}  # fmt: skip
+    whole = rows.get("whole cost every 10 updates")
+    claim = {"claim": "Updating the attention cost every 10 steps makes the overhead < 2%",
+             "paper": "< 2% of training time", "ours": ours}  # fmt: skip
+    if bench["algo"] != "mbmpo" or whole is None or "loop_ratio" not in whole:
+        return {**claim, "verdict": "not tested",
+                "reason": "not as the paper states it: this times "
+                f"{bench['algo']}, not MB-MPO, and thins the Jacobian term alone (the temporal "
+                "term still runs every update): `python benchmarks/ma_overhead.py --algo mbmpo "
+                "--rounds 7 --out benchmarks/results/ma_overhead_mbmpo.json` measures it as the "
+                "paper states it"}  # fmt: skip
+    low, high = whole["loop_ratio"]["ci"]
+    n = len(whole["loop_ratio"]["ratios"])
+    verdict = ("reproduced" if high < 1.02 else "not reproduced" if low > 1.02
+               else "inconclusive at this scale")  # fmt: skip
+    mean = whole["loop_ratio"]["mean"]
+    return {**claim, "ours": f"{100 * (mean - 1):.1f}% [{100 * (low - 1):.1f}"
+            f"%, {100 * (high - 1):.1f}%] of the training loop with the whole attention cost "
+            f"every 10 updates (paired ratios over {n} interleaved rounds); {ours}",
+            "verdict": verdict,
+            "reason": "the 95% t interval of the paired per-round ratios against 2%"}  # fmt: skip
 
 
 def latest_table(pattern: str, env: str, usable: Callable[[dict, dict], list[str]]
@@ -888,6 +908,7 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
                 default=0)  # fmt: skip
     heads = {v: [h["claim"].split(" (")[0] for h in result["headline"] if h["verdict"] == v]
              for v in ("reproduced", "not reproduced")}  # fmt: skip
+    rest = Counter(h["verdict"] for h in result["headline"])
     judged = ("reproduced", "not reproduced")
     bh = {v: sum(c.get("verdict_bh") == v for c in cells) for v in judged}
     by_finding = "; ".join(_finding_text(f) for f in result["findings"] if f.get("tested"))
@@ -904,8 +925,9 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
         f"{bh['not reproduced']}.",
         "Headline claims reproduced: " + ("; ".join(heads["reproduced"]) or "none")
         + "; not reproduced: " + ("; ".join(heads["not reproduced"]) or "none")
-        + f" (the rest are inconclusive at this scale: see the table; {count['not tested']} "
-        "cells not tested).",
+        + f" ({rest['inconclusive at this scale']} inconclusive at this scale, "
+        f"{rest['not tested']} not tested as the paper states them: see the table; "
+        f"{count['not tested']} table cells not tested).",
     ]  # fmt: skip
 
 

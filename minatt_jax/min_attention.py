@@ -11,11 +11,12 @@ penalty = alpha * (feedback + temporal), with
   the last update, held fixed), or, as an option, the rollout reading ||(u(x') - u(x)) / dt||^2 over
   consecutive states (x, x') of the batch.
 
-**Update interval.** With ``interval = k > 1`` the feedback term is computed on every k-th update
-only, and on those updates it enters with weight ``alpha * k``: it still carries a gradient there,
-and averaged over k updates the regularization strength equals alpha per update (the same total
-pull as computing it every time, delivered in fewer, larger steps). ``interval_scaling=False``
-keeps weight alpha on those updates instead (then the effective strength is alpha / k).
+**Update interval.** With ``interval = k > 1`` the feedback term (with ``interval_terms="both"``
+the temporal term too: the whole attention cost) is computed on every k-th update only, and on
+those updates it enters with weight ``alpha * k``: it still carries a gradient there, and
+averaged over k updates the regularization strength equals alpha per update (the same total pull
+as computing it every time, delivered in fewer, larger steps). ``interval_scaling=False`` keeps
+weight alpha on those updates instead (then the effective strength is alpha / k).
 
 A CAPS regularizer (Mysore et al. 2021) sits beside it as a comparison baseline:
 lambda_T ||u(x) - u(x')|| + lambda_S ||u(x) - u(x + N(0, sigma^2))||.
@@ -55,6 +56,8 @@ class MAConfig:
         which for a batch in random order (a replay sample) are a uniform random subset.
       interval: compute the feedback term every ``interval`` updates (see the module docstring).
       interval_scaling: weight the feedback term by alpha * interval on the updates computing it.
+      interval_terms: which terms ``interval`` thins: "feedback" (the Jacobian term alone) or
+        "both" (the whole attention cost, the temporal term too).
       temporal: "parameter" (appendix reading, default) or "rollout".
       temporal_dt: dt of the temporal term; None (default) = 1 update for the parameter reading,
         the environment's dt for the rollout reading (``config.resolve`` fills it in).
@@ -86,6 +89,8 @@ class MAConfig:
     )
     interval: int = setting(1, ge=1, why="the feedback term on every update, as the paper")
     interval_scaling: bool = setting(True)
+    interval_terms: str = setting("feedback", choices=("feedback", "both"),
+                                  why="the appendix thins the Jacobian term")  # fmt: skip
     temporal: str = setting(
         "parameter", choices=TEMPORAL_READINGS,
         why="the paper appendix's reading, the change of u between updates",
@@ -336,21 +341,34 @@ def penalty(
         def feedback_fn() -> jax.Array:
             return jnp.mean(_feedback_per_state(config, u, params, obs, key_probe))
 
-        if config.interval == 1:
-            feedback = feedback_fn()
-            weight = _scaled(alpha, w_feedback)
-        else:
-            due = jnp.asarray(update_step) % config.interval == 0
-            feedback = jax.lax.cond(due, feedback_fn, lambda: zero)
-            scale = config.interval if config.interval_scaling else 1
-            weight = jnp.where(due, _scaled(alpha, w_feedback) * scale, 0.0)
+        feedback, weight = _thinned(config, feedback_fn, _scaled(alpha, w_feedback), update_step,
+                                    config.interval)  # fmt: skip
         total = total + weight * feedback
     if config.uses_temporal:
-        temporal = jnp.mean(
-            _temporal_per_state(config, u, params, obs, prev_params, next_obs, controls)
-        )
-        total = total + _scaled(alpha, w_temporal) * temporal
+
+        def temporal_fn() -> jax.Array:
+            return jnp.mean(
+                _temporal_per_state(config, u, params, obs, prev_params, next_obs, controls)
+            )
+
+        every = 1 if config.interval_terms == "feedback" else config.interval
+        temporal, weight = _thinned(config, temporal_fn, _scaled(alpha, w_temporal), update_step,
+                                    every)  # fmt: skip
+        total = total + weight * temporal
     return total, {"feedback": feedback, "temporal": temporal, "penalty": total}
+
+
+def _thinned(config: MAConfig, term: Callable[[], jax.Array], weight: jax.Array,
+             update_step: jax.Array | int, every: int) -> tuple[jax.Array, jax.Array]:  # fmt: skip
+    """(the term, its weight) computed on every ``every``-th update only (``lax.cond`` on the
+    unbatched update counter: the other updates skip its cost), weighted by ``every`` there
+    when ``interval_scaling`` (the same pull per update on average)."""
+    if every == 1:
+        return term(), weight
+    due = jnp.asarray(update_step) % every == 0
+    value = jax.lax.cond(due, term, lambda: jnp.zeros((), jnp.float32))
+    scale = every if config.interval_scaling else 1
+    return value, jnp.where(due, weight * scale, 0.0)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -191,3 +193,36 @@ def test_per_state_penalty_matches_the_batch_penalty(problem):
     total, _ = ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev, alpha=cfg.alpha)
     assert per_state.shape == (obs.shape[0],)
     assert float(jnp.mean(per_state)) == pytest.approx(float(total), rel=1e-5)
+
+
+def test_the_whole_attention_cost_can_be_thinned(problem):
+    """interval_terms="both": the temporal term too runs on every 10th update only, weighted
+    10x there, and is skipped (zero, no gradient) between; "feedback" leaves it every update."""
+    params, obs = problem
+    prev = jax.tree.map(lambda x: x + 0.05, params)
+    key = jax.random.PRNGKey(0)
+    every = ma.MAConfig(alpha=0.5, mode="temporal", estimator="jacfwd", subsample=0)
+    both = ma.MAConfig(alpha=0.5, mode="full", estimator="jacfwd", subsample=0, interval=10,
+                       interval_terms="both")  # fmt: skip
+    jacobian_only = dataclasses.replace(both, interval_terms="feedback")
+
+    def parts(cfg, step):
+        return jax.jit(lambda s: ma.penalty(cfg, tanh_linear, params, obs, key, prev_params=prev,
+                                            update_step=s, alpha=cfg.alpha)[1])(step)  # fmt: skip
+
+    temporal = float(parts(every, 0)["temporal"])
+    assert temporal > 0
+    assert float(parts(both, 20)["temporal"]) == pytest.approx(temporal, rel=1e-6)
+    assert float(parts(both, 21)["temporal"]) == 0.0 and float(parts(both, 21)["penalty"]) == 0.0
+    assert float(parts(jacobian_only, 21)["temporal"]) == pytest.approx(temporal, rel=1e-6)
+
+    def grad(cfg, step):
+        def loss(p):
+            return ma.penalty(cfg, tanh_linear, p, obs, key, prev_params=prev, update_step=step,
+                              alpha=cfg.alpha)[0]  # fmt: skip
+
+        return jax.grad(loss)(params)["W"]
+
+    only_temporal = dataclasses.replace(both, mode="temporal")
+    np.testing.assert_allclose(grad(only_temporal, 20), 10 * grad(every, 0), rtol=1e-5)
+    assert float(jnp.max(jnp.abs(grad(only_temporal, 21)))) == 0.0

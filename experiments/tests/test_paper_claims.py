@@ -208,27 +208,45 @@ def test_adaptation_is_judged_on_halfcheetahs_crippled_leg_at_the_papers_stage()
 
 
 def test_the_overhead_claim_reads_whole_training_wall_time(tmp_path, monkeypatch):
+    """Judged only as the paper states it: MB-MPO with the whole attention cost every 10
+    updates, by the 95% t interval of paired per-round ratios against 2%; a SAC benchmark, or
+    one thinning the Jacobian term alone, is "not tested" and says what would test it."""
     monkeypatch.setattr(paper_claims, "BENCHMARKS", str(tmp_path))
     claims = {c["claim"]: c for c in paper_claims.cost_claims()}
     amortized = "Updating the attention cost every 10 steps makes the overhead < 2%"
     assert claims[amortized]["verdict"] == "not tested"
 
-    def write(every10: float) -> None:
-        rows = [{"variant": v, "whole_vs_off": r, "loop_vs_off": r, "runs": [{}, {}, {}]}
+    def write(algo: str, ratios: list[float] | None, name: str = "ma_overhead.json") -> None:
+        rows = [{"variant": v, "whole_vs_off": r, "loop_vs_off": r, "runs": [{}] * 7}
                 for v, r in (("off", 1.0), ("feedback every update", 1.10),
-                             ("feedback every 10 updates", every10))]  # fmt: skip
-        bench = {"rows": rows, "algo": "sac", "env": "hopper", "env_steps": 5000,
+                             ("feedback every 10 updates", 1.015))]  # fmt: skip
+        if ratios is not None:
+            mean = float(np.mean(ratios))
+            half = 2.447 * float(np.std(ratios, ddof=1)) / np.sqrt(len(ratios))  # t(6) 97.5%
+            rows.append({"variant": "whole cost every 10 updates", "whole_vs_off": mean,
+                         "loop_vs_off": mean, "runs": [{}] * len(ratios),
+                         "loop_ratio": {"ratios": ratios, "mean": mean,
+                                        "ci": [mean - half, mean + half]}})  # fmt: skip
+        bench = {"rows": rows, "algo": algo, "env": "hopper", "env_steps": 2000,
                  "warmup_steps": 5000, "command": "python benchmarks/ma_overhead.py",
                  "machine": "x86_64, 2 cores"}  # fmt: skip
-        with open(tmp_path / "ma_overhead.json", "w") as f:
+        with open(tmp_path / name, "w") as f:
             json.dump(bench, f)
 
-    write(1.015)
+    write("sac", None)
     claim = {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]
-    assert claim["verdict"] == "reproduced" and "1.5% of the training loop" in claim["ours"]
-    write(1.04)
+    assert claim["verdict"] == "not tested" and "--algo mbmpo" in claim["reason"]
+    assert "1.5% of the training loop" in claim["ours"]
+    tight = [1.008, 1.012, 1.010, 1.009, 1.011, 1.010, 1.010]
+    write("mbmpo", tight, "ma_overhead_mbmpo.json")
     claim = {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]
-    assert claim["verdict"] == "not reproduced"
+    assert claim["verdict"] == "reproduced" and "paired ratios over 7" in claim["ours"]
+    write("mbmpo", [r + 0.03 for r in tight], "ma_overhead_mbmpo.json")
+    assert {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]["verdict"] == (
+        "not reproduced")  # fmt: skip
+    write("mbmpo", [1.0, 1.04, 0.99, 1.05, 1.01, 1.03, 1.02], "ma_overhead_mbmpo.json")
+    assert {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]["verdict"] == (
+        "inconclusive at this scale")  # fmt: skip
 
 
 def test_fewer_than_five_seeds_give_no_verdict(population):
