@@ -67,7 +67,17 @@ def deterministic(
     normalizer: obs_norm.Normalizer | None = None,
     normalize: bool = False,
 ) -> Policy:
-    """The deterministic control u = control(params, x) (evaluation)."""
+    """The deterministic control u = control(params, x) (evaluation).
+
+    Args:
+        control: ``control(params, x) -> u`` on the policy's input x.
+        params: its parameters.
+        normalizer: the observation normalizer, or None.
+        normalize: whether x is the normalized observation (static).
+
+    Returns:
+        A ``Policy`` for ``unroll``.
+    """
     u = lambda x: control(params, x)  # noqa: E731
     return Policy(act=lambda x, key: u(x), control=u, prepare=_prepare(normalizer, normalize))
 
@@ -79,7 +89,18 @@ def stochastic(
     normalizer: obs_norm.Normalizer | None = None,
     normalize: bool = False,
 ) -> Policy:
-    """Actions sampled from the policy distribution (data collection)."""
+    """Actions sampled from the policy distribution (data collection).
+
+    Args:
+        sample: ``sample(params, x, key) -> u``, a draw from the distribution.
+        control: the deterministic control beside it (the feedback probe reads it).
+        params: the parameters.
+        normalizer: the observation normalizer, or None.
+        normalize: whether x is the normalized observation (static).
+
+    Returns:
+        A ``Policy`` for ``unroll`` and the collectors (pass ``unroll`` a key).
+    """
     return Policy(
         act=lambda x, key: sample(params, x, key),
         control=lambda x: control(params, x),
@@ -187,12 +208,28 @@ def unroll(
 
 
 def gain_at(u: Callable[[jax.Array], jax.Array], x: jax.Array) -> jax.Array:
-    """du/dx (act_dim, x_dim) at one policy input x, exact (``min_attention.control_jacobian``)."""
+    """The control's Jacobian at one policy input, exactly (``min_attention.control_jacobian``).
+
+    Args:
+        u: ``u(x) -> action``.
+        x: one input, (x_dim,).
+
+    Returns:
+        du/dx, (act_dim, x_dim).
+    """
     return ma.control_jacobian(lambda _, y: u(y), None, x[None])[0]
 
 
 def feedback_at(u: Callable[[jax.Array], jax.Array], x: jax.Array) -> jax.Array:
-    """||du/dx||_F^2 at one policy input x, exact (``min_attention.feedback_exact``, jacfwd)."""
+    """The feedback norm at one policy input, exactly (``min_attention.feedback_exact``).
+
+    Args:
+        u: ``u(x) -> action``.
+        x: one input, (x_dim,).
+
+    Returns:
+        ||du/dx||_F^2, a scalar.
+    """
     return ma.feedback_exact(lambda _, y: u(y), None, x[None], "jacfwd")[0]
 
 
@@ -204,6 +241,14 @@ def episode_metrics(traj: Trajectory, dt: float) -> dict[str, jax.Array]:
     ||(u_t - 2 u_{t-1} + u_{t-2}) / dt^2||^2. In a meta-episode (``meta_episode_index`` among
     the environment's metrics) the differences run within each inner episode: the jump from one
     episode's last action to the next one's first is no change of the control law.
+
+    Args:
+        traj: one rollout (``unroll``; ``probe_feedback`` for the feedback norm).
+        dt: the environment's control time step (``env.dt``).
+
+    Returns:
+        ``return``, ``length``, ``feedforward_norm``, ``energy``, ``jerk`` and, with the probe,
+        ``feedback_norm``.
     """
     alive, u = traj.alive, traj.action
     length = jnp.sum(alive)
@@ -239,7 +284,17 @@ class CollectStep(NamedTuple):
 
 
 def reset_with_tasks(env: Any, task_set: Any, num_envs: int, key: jax.Array) -> EnvState:
-    """Fresh states of ``num_envs`` environments, each on a task drawn from ``task_set``."""
+    """Fresh states of several environments, each on a task drawn from a task set.
+
+    Args:
+        env: the environment.
+        task_set: the stacked tasks to draw from.
+        num_envs: how many environments.
+        key: the random key of the draws and resets.
+
+    Returns:
+        The states, with a leading axis of ``num_envs``.
+    """
     k_task, k_reset = jax.random.split(key)
     tasks = jax.vmap(lambda k: sample_task(k, task_set))(jax.random.split(k_task, num_envs))
     return jax.vmap(env.reset)(jax.random.split(k_reset, num_envs), tasks)

@@ -21,14 +21,18 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
+import sys
+import tempfile
+import time
 from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from minatt_jax import run_files
+from minatt_jax import run_files, run_guard
 from minatt_jax.config import TrainConfig
 
 FORMAT = 2
@@ -114,6 +118,57 @@ class _QuietAbsl:
         self.logger.setLevel(self.level)
 
 
+# Printed by orbax's asyncio machinery when a read or write fails: tensorstore's callbacks reach
+# an event loop orbax has already closed, each printing a traceback from a native thread (the
+# threads' writes interleave, so the pieces are removed wherever they fall).
+_LOOP_CLOSED = re.compile(
+    r"Traceback \(most recent call last\):|File \"[^\"]*asyncio/base_events\.py\", line \d+, "
+    r"in \w+|self\._check_closed\(\)|raise RuntimeError\('Event loop is closed'\)|"
+    r"RuntimeError: Event loop is closed|RuntimeError:?|Event loop is closed"
+)
+
+
+# What those tracebacks say, whole: a leftover piece of them (a line cut by another thread's
+# write) is one of its substrings.
+_LOOP_CLOSED_TEXT = (
+    'Traceback (most recent call last): File "asyncio/base_events.py", line 806, in '
+    "call_soon_threadsafe self._check_closed() line 519, in _check_closed raise "
+    "RuntimeError('Event loop is closed') RuntimeError: Event loop is closed"
+)
+
+
+class _QuietLoopErrors:
+    """Captures file descriptor 2 around an orbax call and, when the call failed, drops the
+    "Event loop is closed" tracebacks its native callbacks print (after a moment for the late
+    ones), passing every other line on: a failed read or write then ends in our one line."""
+
+    def __enter__(self) -> None:
+        sys.stderr.flush()
+        self.saved = os.dup(2)
+        self.capture = tempfile.TemporaryFile()
+        os.dup2(self.capture.fileno(), 2)
+        self.real = run_guard.real_stderr(self.saved)  # a signal's line still reaches the user
+        self.real.__enter__()
+
+    def __exit__(self, kind: Any, *exc: Any) -> None:
+        if kind is not None:
+            time.sleep(0.3)  # the callbacks of the failed operation's pending reads
+        sys.stderr.flush()
+        os.dup2(self.saved, 2)
+        self.real.__exit__(None, None, None)
+        os.close(self.saved)
+        self.capture.seek(0)
+        text = self.capture.read().decode(errors="replace")
+        self.capture.close()
+        if kind is not None:
+            text = _LOOP_CLOSED.sub("", text)
+        kept = [line for line in text.splitlines() if any(c.isalnum() for c in line)
+                and not (kind is not None and line.strip() in _LOOP_CLOSED_TEXT)]  # fmt: skip
+        if kept:
+            sys.stderr.write("\n".join(kept) + "\n")
+            sys.stderr.flush()
+
+
 def save(run_dir: str, step: int, state: Any) -> None:
     """Saves ``state`` as checkpoint ``step`` and waits until it is on disk.
 
@@ -124,7 +179,7 @@ def save(run_dir: str, step: int, state: Any) -> None:
     # run (jax.distributed); the values read back are numpy arrays in any case.
     items = {k: v for k, v in jax.device_get(named_leaves(state)).items() if np.size(v) > 0}
     try:
-        with _QuietAbsl(), _manager(run_dir, create=True) as manager:
+        with _QuietLoopErrors(), _QuietAbsl(), _manager(run_dir, create=True) as manager:
             saved = manager.save(
                 step,
                 args=ocp.args.Composite(
@@ -193,7 +248,7 @@ def describe(run_dir: str, step: int | None = None) -> dict[str, Any]:
     """The manifest of checkpoint ``step`` (default: the latest): format and items."""
     step = _step(run_dir, step)
     try:
-        with _QuietAbsl(), _manager(run_dir, create=False) as manager:
+        with _QuietLoopErrors(), _QuietAbsl(), _manager(run_dir, create=False) as manager:
             restored = manager.restore(
                 step, args=ocp.args.Composite(manifest=ocp.args.JsonRestore())
             )
@@ -280,7 +335,7 @@ def restore_items(run_dir: str, like: dict[str, Any], step: int | None = None) -
     abstract = _nest({k: jax.ShapeDtypeStruct(np.shape(v), v.dtype) for k, v in wanted.items()})
     restore_args = jax.tree.map(lambda _: ocp.RestoreArgs(restore_type=np.ndarray), abstract)
     try:
-        with _QuietAbsl(), _manager(run_dir, create=False) as manager:
+        with _QuietLoopErrors(), _QuietAbsl(), _manager(run_dir, create=False) as manager:
             restored = manager.restore(
                 step,
                 args=ocp.args.Composite(

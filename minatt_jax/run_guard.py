@@ -29,6 +29,28 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
+# The file descriptor that reaches the user's stderr while fd 2 is captured (``checkpoint``'s
+# filter of orbax's native tracebacks): a signal's last line must not vanish into a capture.
+_REAL_STDERR: list[int] = []
+
+
+def say(text: str) -> None:
+    """Writes ``text`` to the user's stderr at once, also while fd 2 is being captured."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.write(_REAL_STDERR[-1] if _REAL_STDERR else 2, text.encode())
+
+
+@contextlib.contextmanager
+def real_stderr(fd: int) -> Iterator[None]:
+    """While fd 2 is captured, ``say`` writes to ``fd`` (the saved original)."""
+    _REAL_STDERR.append(fd)
+    try:
+        yield
+    finally:
+        _REAL_STDERR.remove(fd)
+
+
 class RunLockedError(Exception):
     """Another live process holds the run directory."""
 
@@ -108,9 +130,7 @@ def exit_on_signals() -> Iterator[None]:
 
     def handler(signum: int, frame: FrameType | None) -> None:
         del frame
-        sys.stdout.flush()
-        sys.stderr.write(f"minatt-jax: {words.get(signum, 'stopped')}\n")
-        sys.stderr.flush()
+        say(f"minatt-jax: {words.get(signum, 'stopped')}\n")
         os._exit(EXIT_STATUS.get(signum, 1))
 
     previous = _install(handler, (signal.SIGINT, signal.SIGTERM))
@@ -149,25 +169,18 @@ class StopSignals:
         if self.phase is not None:
             self.exit_at_once(signum)
         if self.received is not None:
-            sys.stdout.flush()
-            sys.stderr.write(f"\nminatt-jax: second {name}: exiting now; the last complete "
-                             "checkpoint is kept\n")  # fmt: skip
-            sys.stderr.flush()
+            say(f"\nminatt-jax: second {name}: exiting now; the last complete checkpoint is "
+                "kept\n")  # fmt: skip
             os._exit(EXIT_STATUS.get(signum, 1))
         self.received = signum
-        sys.stderr.write(
-            f"\nminatt-jax: {name} received: stopping after the current chunk (send it again "
-            "to exit at once)\n"
-        )
-        sys.stderr.flush()
+        say(f"\nminatt-jax: {name} received: stopping after the current chunk (send it again "
+            "to exit at once)\n")  # fmt: skip
 
     def exit_at_once(self, signum: int) -> None:
         """Ends the process now (outside the run loop nothing is half-written)."""
         hint = f"; resume with: {self.resume_hint}" if self.resume_hint else ""
-        sys.stdout.flush()
-        sys.stderr.write(f"\nminatt-jax: stopped by {signal.Signals(signum).name} while "
-                         f"{self.phase}: no step is lost{hint}\n")  # fmt: skip
-        sys.stderr.flush()
+        say(f"\nminatt-jax: stopped by {signal.Signals(signum).name} while {self.phase}: no "
+            f"step is lost{hint}\n")  # fmt: skip
         os._exit(EXIT_STATUS.get(signum, 1))
 
     def __enter__(self) -> StopSignals:

@@ -47,8 +47,19 @@ class NumpyForm(NamedTuple):
 
 
 def mlp_numpy_form(mlp: dict, activation: str, normalizer: Any, normalize: bool) -> NumpyForm:
-    """The ``NumpyForm`` of a flax MLP actor (its ``Dense_i`` parameters, the first
-    ``act_dim`` outputs the tanh's input) with the observation normalizer it acts behind."""
+    """The numpy form of a flax MLP actor, for ``PolicyFamily.export``.
+
+    Args:
+        mlp: the actor's parameters (``Dense_0``, ``Dense_1``, ...; the first ``act_dim``
+            outputs of the last layer are the tanh's input).
+        activation: the hidden layers' activation (``relu``, ``tanh``, ``elu``, ``swish``,
+            ``identity``).
+        normalizer: the observation normalizer the actor acts behind.
+        normalize: whether the policy normalizes its observations.
+
+    Returns:
+        A ``NumpyForm`` (layers, activation, normalizer) that ``numpy_policy`` runs.
+    """
     from minatt_jax.numpy_policy import dense_layers
 
     return NumpyForm(dense_layers(mlp), activation, np.asarray(jax.device_get(normalizer.mean)),
@@ -138,7 +149,17 @@ class Adapter(NamedTuple):
 def no_adaptation(config: Any, env: Any, family: PolicyFamily, settings: Any) -> Adapter:
     """The adapter of an agent that does not adapt at meta-test time (or adapts in context):
     the saved policy (its ``family.checkpoint_items``), unchanged by every step, so a meta-test
-    reports its evaluation on each new task. Name it as ``AgentSpec(adapter=no_adaptation)``."""
+    reports its evaluation on each new task. Name it as ``AgentSpec(adapter=no_adaptation)``.
+
+    Args:
+        config: the run's configuration.
+        env: its environment.
+        family: its policy family.
+        settings: the meta-test's settings (unused: nothing adapts).
+
+    Returns:
+        An ``Adapter`` whose steps return the policy unchanged.
+    """
     return Adapter(
         like=family.checkpoint_items,
         prepare=lambda parts, normalizer, traj, key, refit: None,
@@ -148,7 +169,15 @@ def no_adaptation(config: Any, env: Any, family: PolicyFamily, settings: Any) ->
 
 
 def config_field(config: Any, dotted: str) -> Any:
-    """The value of a dotted field name (``"ma.alpha"``) of a configuration."""
+    """The value of a dotted field of a configuration.
+
+    Args:
+        config: a ``TrainConfig`` (or any object of nested attributes).
+        dotted: ``"seed"``, ``"ma.alpha"``, ``"sac.actor_lr"``, ...
+
+    Returns:
+        The field's value.
+    """
     value: Any = config
     for part in dotted.split("."):
         value = getattr(value, part)
@@ -156,8 +185,16 @@ def config_field(config: Any, dotted: str) -> Any:
 
 
 def hyper_values(spec: AgentSpec, config: Any) -> dict[str, np.ndarray]:
-    """A configuration's values of the agent's ``hyper`` fields, as float32 arrays: the one
-    channel through which they reach the program (``"ma_terms"``: the MA mode's term weights)."""
+    """A configuration's values of the agent's ``hyper`` fields: the one channel through which
+    swept values reach the program (data, never a recompile).
+
+    Args:
+        spec: the agent (its ``hyper``: name -> dotted field).
+        config: the run's configuration.
+
+    Returns:
+        name -> float32 array (``"ma_terms"``: the MA mode's (feedback, temporal) weights).
+    """
     values = {}
     for name, field in spec.hyper.items():
         if name == "ma_terms":
@@ -178,7 +215,15 @@ def abstract_hyper(names: Any) -> dict[str, jax.Array]:
 
 
 def check_hyper(spec: AgentSpec, hyper: dict[str, Any]) -> None:
-    """ValueError unless ``hyper`` holds exactly the agent's declared fields."""
+    """Checks that a hyper dict holds exactly the agent's declared fields.
+
+    Args:
+        spec: the agent.
+        hyper: name -> value.
+
+    Raises:
+        ValueError: a field missing or one the agent does not declare.
+    """
     missing = sorted(set(spec.hyper) - set(hyper))
     extra = sorted(set(hyper) - set(spec.hyper))
     if missing or extra:
@@ -190,7 +235,16 @@ def check_hyper(spec: AgentSpec, hyper: dict[str, Any]) -> None:
 
 
 def with_hyper(state: Any, hyper: dict[str, Any]) -> Any:
-    """``state`` with its agent's ``hyper`` subtree replaced (same names, same shapes)."""
+    """A train state with its agent's ``hyper`` subtree replaced (how a resume applies changed
+    swept values without recompiling).
+
+    Args:
+        state: the train state.
+        hyper: name -> value, the same names and shapes as the state's.
+
+    Returns:
+        The state with the new values.
+    """
     old = state.agent.hyper
     if set(old) != set(hyper):
         raise ValueError(f"hyper values name {sorted(hyper)}, the state holds {sorted(old)}")
