@@ -549,7 +549,7 @@ def write_report(report: Report, out_dir: str) -> dict[str, Any]:
 
 def _frames_figure(groups: dict[str, list[Run]], path: str, count: int = 6) -> bool:
     """A strip of ``count`` frames per group (``render``): what each group's policy does. False,
-    with nothing written, where this machine cannot render offscreen (no EGL or OSMesa)."""
+    with nothing written, where no offscreen OpenGL (EGL or OSMesa) is installed."""
     from minatt_jax import render
 
     rows = []
