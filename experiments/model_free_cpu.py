@@ -24,22 +24,12 @@ import os
 import numpy as np
 import stats
 import study
-from scipy import stats as scipy_stats
 
 from minatt_jax import population, runner
 from minatt_jax.config import PRESETS, resolve, with_overrides
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 METRICS = ("return", "feedback_norm", "energy", "feedforward_norm")
-
-
-def t_interval(values: list[float], level: float = 0.95) -> list[float]:
-    """The t interval of the mean over seeds (n - 1 degrees of freedom)."""
-    x = np.asarray(values, float)
-    if len(x) < 2:
-        return [float(x.mean())] * 2
-    half = scipy_stats.t.ppf(0.5 + level / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
-    return [float(x.mean() - half), float(x.mean() + half)]
 
 
 def main() -> None:
@@ -78,9 +68,10 @@ def main() -> None:
         for k in METRICS:
             values = [s[k] for s in arm["seeds"]]
             row[k] = {"mean": float(np.mean(values)), "std": float(np.std(values, ddof=1)),
-                      "n": len(values), "ci": t_interval(values), "values": values}  # fmt: skip
+                      "n": len(values), "ci": stats.t_interval(values),
+                      "values": values}  # fmt: skip
             row[f"c_engine_{k}"] = {"mean": float(np.mean(arm["c_engine"][k])),
-                                    "ci": t_interval(arm["c_engine"][k])}  # fmt: skip
+                                    "ci": stats.t_interval(arm["c_engine"][k])}  # fmt: skip
         if alpha != "0" and "0" in arms:
             for k in METRICS:
                 a, b = row[k]["values"], [s[k] for s in arms["0"]["seeds"]]
@@ -146,7 +137,7 @@ def _figure(result: dict, path: str) -> None:
     for alpha, curves in result["curves"].items():
         values = np.asarray(curves, float)
         mean = values.mean(0)
-        ci = np.asarray([t_interval(list(values[:, i])) for i in range(values.shape[1])])
+        ci = np.asarray([stats.t_interval(list(values[:, i])) for i in range(values.shape[1])])
         ax.plot(steps, mean, marker="o", ms=3, label=f"alpha {alpha} (n={len(values)})")
         ax.fill_between(steps, ci[:, 0], ci[:, 1], alpha=0.2)
     ax.set_xlabel("env steps")

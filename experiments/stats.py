@@ -132,6 +132,19 @@ def sign_flip_p(values: Sequence[float], resamples: int = 100_000, seed: int = 0
     return float(result.pvalue)
 
 
+def t_interval(values: Sequence[float], level: float = 0.95) -> list[float]:
+    """The ``level`` t interval of the mean of ``values`` (n - 1 degrees of freedom): the
+    interval for seeds (or paired differences) too few for a bootstrap; a single value is its
+    own interval, none is NaN."""
+    x = np.asarray(values, np.float64)
+    if x.size == 0:
+        return [float("nan")] * 2
+    if x.size < 2:
+        return [float(x.mean())] * 2
+    half = scipy.stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
+    return [float(x.mean() - half), float(x.mean() + half)]
+
+
 def spread_p(a: Sequence[float], b: Sequence[float]) -> float:
     """Two-sided p-value that two arms spread alike: the Brown-Forsythe test (Levene's on
     deviations from the median, robust to non-normal seeds). NaN under 2 values in an arm or

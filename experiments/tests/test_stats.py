@@ -124,3 +124,11 @@ def test_summary_uses_the_sample_standard_deviation():
     s = stats.summary([1.0, 2.0, 3.0, 4.0])
     assert s["std"] == pytest.approx(np.std([1.0, 2.0, 3.0, 4.0], ddof=1))
     assert np.isnan(stats.summary([2.0])["std"])
+
+
+def test_t_interval_against_a_hand_worked_example():
+    # 1, 2, 3, 4, 5: mean 3, sd sqrt(2.5), t(0.975, 4) = 2.7764451 -> half width 1.963243
+    low, high = stats.t_interval([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert low == pytest.approx(3 - 1.963243, abs=1e-6)
+    assert high == pytest.approx(3 + 1.963243, abs=1e-6)
+    assert stats.t_interval([2.5]) == [2.5, 2.5]

@@ -1,0 +1,71 @@
+"""The in-context adaptation controls of the MAMBA study: the episode-index views and the memory
+reset at every inner episode, on the point robot's meta-episodes."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mamba_point_robot as study
+import numpy as np
+import pytest
+
+from minatt_jax import acting
+
+
+@pytest.fixture(scope="module")
+def env():
+    return study.run_config("mamba", 0.0, 0, None, []).make_env()  # 3 inner episodes
+
+
+def _unroll(env, policy, seed: int = 0):
+    task = env.nominal_task()
+    key = jax.random.PRNGKey(seed)
+    return jax.jit(lambda k: acting.unroll(env, policy, env.reset(k, task), env.max_steps,
+                                           key=k))(key)  # fmt: skip
+
+
+def test_the_index_views_change_only_the_index_input(env) -> None:
+    policy = acting.random_policy(env.action_size)
+    plain = _unroll(env, policy)
+    index = np.asarray(plain.env_metrics["meta_episode_index"], int)
+    assert sorted(set(index)) == [0, 1, 2]
+    for mode in ("withheld", "shuffled"):
+        traj = _unroll(study.EpisodeIndexView(env, mode), policy)
+        shown = np.asarray(traj.obs[:, -1])
+        np.testing.assert_array_equal(traj.reward, plain.reward)  # same episodes, same reward
+        np.testing.assert_array_equal(traj.obs[:, :-1], plain.obs[:, :-1])
+        if mode == "withheld":
+            assert np.all(shown == 0.0)
+        else:  # one shown index per inner episode, together a permutation of 0, 1/2, 1
+            per_episode = [set(shown[index == i]) for i in range(3)]
+            assert all(len(s) == 1 for s in per_episode)
+            assert sorted(s.pop() for s in per_episode) == [0.0, 0.5, 1.0]
+    orders = {tuple(np.asarray(_unroll(study.EpisodeIndexView(env, "shuffled"), policy, seed
+                                       ).obs[[0, 60, 120], -1])) for seed in range(12)}  # fmt: skip
+    assert len(orders) > 1  # drawn per meta-episode
+
+
+def _counting_policy(act_dim: int) -> acting.RecurrentPolicy:
+    """Memory counts the steps since it was last fresh; the action shows the count."""
+
+    def at(memory):
+        def u(x):
+            return jnp.full(act_dim, jnp.tanh(memory / 100.0))
+
+        return acting.Policy(act=lambda x, k: u(x), control=u)
+
+    return acting.RecurrentPolicy(jnp.zeros(()), at, lambda m, x, a, k: m + 1.0)
+
+
+def test_memory_reset_starts_each_inner_episode_afresh(env) -> None:
+    policy = _counting_policy(env.action_size)
+    first_step = env.observation_size - 2
+    carried = _unroll(env, policy)
+    reset = _unroll(env, study.reset_each_episode(policy, first_step))
+    starts = np.flatnonzero(np.asarray(carried.obs[:, first_step]) > 0.5)
+    assert list(starts) == [0, 50, 100]  # 3 episodes of 50 steps, the point robot never ends
+    steps_since = np.arange(150) - starts[np.searchsorted(starts, np.arange(150), "right") - 1]
+    np.testing.assert_allclose(np.asarray(reset.action[:, 0]), np.tanh(steps_since / 100.0),
+                               rtol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(carried.action[:, 0]), np.tanh(np.arange(150) / 100.0),
+                               rtol=1e-6)  # fmt: skip
