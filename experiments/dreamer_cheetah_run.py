@@ -113,7 +113,9 @@ def main() -> None:
         f"({episodes} episodes of 1000 steps) every chunk; a uniform random policy returns "
         f"{rand.mean():.1f} +- {rand.std():.1f} (max {rand.max():.1f}, {len(rand)} episodes). "
         f"DreamerV3's published curve: {PUBLISHED}. Seeds marked (stored): rows kept from "
-        "this file's earlier version, trained by another call of this script.\n",
+        "this file's earlier version, trained by another call of this script with an earlier "
+        "version of the code; an arm of stored rows is not compared with an arm trained "
+        "anew (retrain both arms in one call to compare them).\n",
         "| alpha | seed | step | return | feedback | feedforward | energy | updates/s |",
         "|---|---|---|---|---|---|---|---|",
     ]

@@ -4,8 +4,11 @@
         [--steps 60000] [--agents mamba [dreamer]] [--runs runs/mamba_point_robot]
         [--set mamba.train_ratio=...] [--train-only] [--collect-only]
 
-Trains (or resumes: run it again after a stop) each agent's runs, every (alpha, seed), as one
-population at the cpu preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3
+Trains (or resumes: run it again after a stop) each agent's runs, each alpha's seeds one
+population under ``--runs/<agent>/alpha<alpha>`` (with ``--train-only``, two alphas train side by
+side, each pinned to its own core: ``taskset -c 0 ... --alphas 0 --train-only`` beside
+``taskset -c 1 ... --alphas 0.05 --train-only``; a last command with every alpha evaluates), at
+the cpu preset's MAMBA setting (``minatt_jax.agents.mamba.CPU``: meta-episodes of 3
 episodes of 50 steps) on ``point_robot_dense`` (the goal on the half circle, reward minus the
 distance: the sparse reward of ``point_robot`` gave no learning signal in 150K steps) on the 16
 training goals of the upper half circle. ``--agents dreamer`` adds DreamerV3 on plain 50-step
@@ -57,6 +60,11 @@ ENV = "point_robot_dense"  # the dense reward: learnable at a CPU's step budget
 GOALS = {"train": 16, "ood": 6}  # goals of each task set
 CONDITIONS = ("as trained", "memory reset", "index withheld", "index shuffled")
 SHARE = "memory's share"  # the adaptation as trained minus under memory reset, per seed
+
+
+def population_dir(runs: str, agent: str, alpha: float) -> str:
+    """The folder of one agent's population at one alpha (its seeds), under ``runs``."""
+    return os.path.join(runs, agent, f"alpha{alpha:g}")
 
 
 def run_config(agent: str, alpha: float, seed: int, steps: int | None, overrides: list[str]):
@@ -221,17 +229,19 @@ def main() -> None:
         steps = args.dreamer_steps if agent == "dreamer" and args.dreamer_steps else args.steps
         members_of[agent] = [run_config(agent, alpha, seed, steps, args.overrides)
                              for alpha in args.alphas for seed in seeds]  # fmt: skip
-        out = os.path.join(args.runs, agent)
-        if not args.collect_only:
+        for alpha in args.alphas if not args.collect_only else ():
+            # each alpha's seeds one population: two alphas can train in two pinned lanes
+            out = population_dir(args.runs, agent, alpha)
             resume = os.path.exists(os.path.join(out, "population.json"))
-            population.train_population(members_of[agent], out, ["ma.alpha"], resume=resume,
+            members = [c for c in members_of[agent] if c.ma.alpha == alpha]
+            population.train_population(members, out, ["ma.alpha"], resume=resume,
                                         log=lambda m: print(m, flush=True))  # fmt: skip
     if args.train_only:
         return
     arms: dict[str, list[dict]] = {}
     for agent, members in members_of.items():
-        out = os.path.join(args.runs, agent)
         for config in members:
+            out = population_dir(args.runs, agent, config.ma.alpha)
             run_dir = os.path.join(out, population.member_name(config, ["ma.alpha"]))
             records = runner.read_metrics(run_dir)
             row: dict[str, Any] = {

@@ -881,6 +881,7 @@ def world_model_rows() -> list[dict[str, Any]]:
                 last = [r["curve"][-1] for r in mine]
                 got = ", ".join(
                     f"seed {r['seed']}: {c['return']:.3g} at {xt.stage_label(c['step'])}"
+                    + (" (an earlier code version)" if r.get("stored") else "")
                     for r, c in zip(mine, last, strict=True)
                 )
                 row.update(

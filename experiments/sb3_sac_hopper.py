@@ -1,11 +1,13 @@
-"""Reference SAC baseline: Stable-Baselines3 SAC on Gymnasium Hopper-v4 (MuJoCo C engine).
+"""Reference SAC baseline: Stable-Baselines3 SAC on Gymnasium's Hopper (MuJoCo C engine).
 
-    python experiments/sb3_sac_hopper.py [--steps 50000] [--seed 0]
+    python experiments/sb3_sac_hopper.py [--steps 100000] [--seed 0] [--env-id Hopper-v5]
 
 Checks whether a weak minatt-jax SAC hopper curve comes from our SAC or from the task: same
 settings as the cpu preset (256x256, Adam 3e-4, batch 256, gamma 0.99, tau 0.005, automatic
 entropy with target -act_dim, 5,000 uniform random warm-up steps, one update per step) and the
-same evaluation (5 deterministic episodes every 5,000 steps). Hopper-v4 is the Gym v3 Hopper that
+same evaluation (5 deterministic episodes every 5,000 steps). The default Hopper-v5 is the
+environment ``experiments/model_free_cpu.py`` evaluates minatt-jax's final policies in, so the
+final rows compare on one engine and one task; Hopper-v4 is the Gym v3 Hopper that
 ``envs/hopper.py`` rebuilds in MJX. Needs ``stable-baselines3`` and ``torch``, which minatt-jax
 does not depend on; writes ``experiments/results/sb3_sac_hopper_seed{seed}.json``.
 """
@@ -25,10 +27,11 @@ RESULTS = os.path.join(os.path.dirname(__file__), "results")
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=50_000)
+    parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-every", type=int, default=5_000)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--env-id", default="Hopper-v5", help="Gymnasium environment id")
     args = parser.parse_args()
     try:
         import gymnasium as gym
@@ -39,8 +42,8 @@ def main() -> None:
         print(f"error: this reference run needs stable-baselines3 and torch ({e})", file=sys.stderr)
         sys.exit(2)
     torch.set_num_threads(args.threads)
-    env = gym.make("Hopper-v4")
-    eval_env = gym.make("Hopper-v4")
+    env = gym.make(args.env_id)
+    eval_env = gym.make(args.env_id)
     records: list[dict] = []
     start = time.perf_counter()
     out = os.path.join(RESULTS, f"sb3_sac_hopper_seed{args.seed}.json")
@@ -65,7 +68,9 @@ def main() -> None:
         os.makedirs(RESULTS, exist_ok=True)
         tmp = out + ".tmp"
         with open(tmp, "w") as f:
-            json.dump({"env": "Hopper-v4", "seed": args.seed, "records": records}, f, indent=1)
+            json.dump({"env": args.env_id, "seed": args.seed, "steps": args.steps,
+                       "command": " ".join(["python", *sys.argv]), "records": records},
+                      f, indent=1)  # fmt: skip
         os.replace(tmp, out)
 
     class EvalEvery(BaseCallback):

@@ -39,7 +39,17 @@ def records(run_dir: pathlib.Path) -> list[dict]:
     return runner.without_timings(runner.read_metrics(str(run_dir)))
 
 
+@pytest.fixture
+def uninstalls_the_example():
+    """The page installs the example into the running environment; remove it afterwards, so
+    the suite leaves no editable install pointing into a temporary folder."""
+    yield
+    subprocess.run([sys.executable, "-m", "pip", "uninstall", "-y", "minatt-ars"],
+                   capture_output=True, timeout=300)  # fmt: skip
+
+
 @pytest.mark.slow
+@pytest.mark.usefixtures("uninstalls_the_example")
 def test_the_plugin_example_runs_through_the_console_command_as_documented(tmp_path):
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     outputs = {}
