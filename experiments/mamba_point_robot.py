@@ -202,6 +202,82 @@ def paired(values: np.ndarray) -> dict[str, Any]:
             "values": [float(v) for v in values]}  # fmt: skip
 
 
+MA_METRICS = ("episode_1", "adaptation", "feedback_norm", "energy")
+
+
+def ma_effects(summaries: dict[str, dict]) -> dict[str, dict]:
+    """Each MA arm against the same agent at alpha 0, as trained: per task set and metric, the
+    difference of the seed means, Welch's 95% interval and the exact permutation p (seeds are
+    independent runs, not pairs)."""
+    out: dict[str, dict] = {}
+    for arm, by_task in summaries.items():
+        agent, alpha = arm.split(" alpha=")
+        base = summaries.get(f"{agent} alpha=0")
+        if float(alpha) == 0 or base is None:
+            continue
+        out[arm] = {}
+        for task_set, by_condition in by_task.items():
+            mine, theirs = by_condition["as trained"], base[task_set]["as trained"]
+            out[arm][task_set] = {}
+            for metric in MA_METRICS:
+                a, b = mine[metric]["values"], theirs[metric]["values"]
+                out[arm][task_set][metric] = {
+                    "diff": float(np.mean(a) - np.mean(b)),
+                    "welch_ci": [float(x) for x in stats.welch_ci(a, b)],
+                    "permutation_p": stats.permutation_p(a, b),
+                }
+    return out
+
+
+def reading(result: dict, k: int, level: float = 0.05) -> list[str]:
+    """What the tests resolve, in sentences written from the numbers: adaptation where its
+    sign-flip p is below ``level``, the memory's share likewise, MA's effects by permutation
+    p; everything else is named unresolved."""
+
+    def resolved(s: dict, key: str = "sign_flip_p") -> bool:
+        return s[key] < level
+
+    lines = ["## Reading\n", f"Resolved means p < {level:g} for that one test (no correction "
+             "across the rows).\n"]  # fmt: skip
+    for task_set in result["goals"]:
+        rand = result["random_policy"][task_set]["adaptation"]
+        for arm, by_condition in result["summaries"].items():
+            t = by_condition[task_set]
+            if "memory reset" not in t:
+                continue
+            a, share = t["as trained"]["adaptation"], t[SHARE]
+            text = (f"- {task_set} goals, {arm}: episode {k} minus episode 1 is {a['mean']:.2f} "
+                    f"[{a['ci'][0]:.2f}, {a['ci'][1]:.2f}] (p {a['sign_flip_p']:.3g}, "
+                    f"{a['n']} seeds): ")  # fmt: skip
+            if not resolved(a):
+                text += "no adaptation is resolved"
+            else:
+                text += "resolved " + ("above" if a["mean"] > 0 else "below") + " 0"
+            text += (f"; the memory's share {share['mean']:.2f} [{share['ci'][0]:.2f}, "
+                     f"{share['ci'][1]:.2f}] (p {share['sign_flip_p']:.3g}) ")  # fmt: skip
+            if resolved(share) and share["mean"] > 0:
+                text += (f"is resolved: the change from episode 1 to {k} depends on what the "
+                         "memory carries between episodes")  # fmt: skip
+            elif resolved(share):
+                text += "is resolved below 0: carrying the memory makes later episodes worse"
+            else:
+                text += "is not resolved: the controls do not show in-context adaptation"
+            text += (f". A random policy's own episode {k} minus episode 1 is {rand['mean']:.2f} "
+                     f"[{rand['ci'][0]:.2f}, {rand['ci'][1]:.2f}].")  # fmt: skip
+            lines.append(text)
+    for arm, by_task in result.get("ma_effects", {}).items():
+        for task_set, metrics in by_task.items():
+            parts = []
+            for metric, e in metrics.items():
+                low, high = e["welch_ci"]
+                verdict = "resolved" if resolved(e, "permutation_p") else "not resolved"
+                parts.append(f"{metric.replace('_', ' ')} {e['diff']:+.3g} (Welch [{low:.3g}, "
+                             f"{high:.3g}], p {e['permutation_p']:.3g}, {verdict})")  # fmt: skip
+            lines.append(f"- {task_set} goals, {arm} minus alpha 0 (as trained): "
+                         + "; ".join(parts) + ".")  # fmt: skip
+    return lines + [""]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-5")
@@ -285,6 +361,7 @@ def main() -> None:
                        - r[task_set]["memory reset"]["by_episode"][0]) for r in rows
                 ])  # fmt: skip
                 summaries[arm][task_set][SHARE] = paired(gain)
+    effects = ma_effects(summaries)
     command = ("python experiments/mamba_point_robot.py --seeds " + args.seeds + " --alphas "
                + " ".join(f"{a:g}" for a in args.alphas) + f" --steps {reference.total_steps}"
                + (" --agents " + " ".join(args.agents) if args.agents != ["mamba"] else "")
@@ -293,7 +370,8 @@ def main() -> None:
                + "".join(f" --set {o}" for o in args.overrides))  # fmt: skip
     result = {**study_provenance(command), "meta_episode": f"{k} x {reference.max_episode_steps} "
               "steps", "goals": GOALS, "episodes_per_goal": args.episodes_per_goal,
-              "random_policy": random, "summaries": summaries, "runs": arms}  # fmt: skip
+              "random_policy": random, "summaries": summaries, "ma_effects": effects,
+              "runs": arms}  # fmt: skip
     os.makedirs(RESULTS, exist_ok=True)
     runner.write_json_atomic(os.path.join(RESULTS, f"{NAME}.json"), result)
     text = table(result, k)
@@ -378,6 +456,7 @@ def table(result: dict, k: int) -> str:
             if share is not None:
                 lines.append(f"- {arm}, memory's share of the adaptation: {cell(share, p=True)}")
         lines.append("")
+    lines += reading(result, k)
     lines += ["## Learning curves (training goals, mean over seeds)\n",
               f"Deterministic evaluation during training: MAMBA's return is a meta-episode's ({k} "
               "episodes), DreamerV3's one episode's.\n"]  # fmt: skip

@@ -69,3 +69,48 @@ def test_memory_reset_starts_each_inner_episode_afresh(env) -> None:
                                rtol=1e-6)  # fmt: skip
     np.testing.assert_allclose(np.asarray(carried.action[:, 0]), np.tanh(np.arange(150) / 100.0),
                                rtol=1e-6)  # fmt: skip
+
+
+def synthetic_summaries(adaptation: list[float], share: list[float], feedback: list[float]):
+    """One task set, as trained and memory reset, from given per-seed values."""
+    by_condition = {
+        condition: {
+            "episode_1": study.paired(np.zeros(6)),
+            "adaptation": study.paired(np.asarray(adaptation)),
+            "feedback_norm": study.paired(np.asarray(feedback)),
+            "energy": study.paired(np.ones(6)),
+        }
+        for condition in ("as trained", "memory reset")
+    }
+    by_condition[study.SHARE] = study.paired(np.asarray(share))
+    return {"train": by_condition}
+
+
+def test_the_reading_claims_only_what_the_exact_tests_resolve() -> None:
+    mixed = [1.0, -1.0, 2.0, -2.0, 0.5, -0.5]  # symmetric: sign-flip p = 1
+    rising = [1.0, 2.0, 3.0, 1.5, 2.5, 0.5]  # all 6 above 0: p = 2 / 64
+    summaries = {
+        "mamba alpha=0": synthetic_summaries(mixed, mixed, [10.0] * 6),
+        "mamba alpha=0.05": synthetic_summaries(rising, rising, [1.0, 2, 3, 4, 5, 6]),
+    }
+    effects = study.ma_effects(summaries)
+    assert list(effects) == ["mamba alpha=0.05"]
+    feedback = effects["mamba alpha=0.05"]["train"]["feedback_norm"]
+    assert feedback["diff"] == pytest.approx(3.5 - 10.0)
+    # every MA seed below every plain one: 2 of the C(12, 6) = 924 relabelings are as extreme
+    assert feedback["permutation_p"] == pytest.approx(2 / 924)
+    random = {"train": {"adaptation": {"mean": 0.0, "ci": [-1.0, 1.0]}}}
+    result = {"goals": {"train": 16}, "summaries": summaries, "ma_effects": effects,
+              "random_policy": random}  # fmt: skip
+    lines = study.reading(result, 3)
+    plain = next(line for line in lines if "mamba alpha=0:" in line)
+    ma = next(line for line in lines if "mamba alpha=0.05:" in line)
+    assert "no adaptation is resolved" in plain and "is not resolved" in plain
+    assert "resolved above 0" in ma and "(p 0.0312" in ma and "depends on what the memory" in ma
+    effect = next(line for line in lines if "minus alpha 0" in line)
+    assert "feedback norm -6.5" in effect and "episode 1 +0" in effect
+    assert "episode 1 +0 (Welch [nan, nan], p 1, not resolved)" in effect  # equal arms
+    assert "feedback norm -6.5 (Welch [-8.46, -4.54], p 0.00216, resolved)" in effect
+    adaptation = effects["mamba alpha=0.05"]["train"]["adaptation"]["permutation_p"]
+    verdict = "resolved" if adaptation < 0.05 else "not resolved"
+    assert f"p {adaptation:.3g}, {verdict})" in effect
