@@ -582,6 +582,15 @@ def cost_claims() -> list[dict[str, Any]]:
                     "term as well (one benchmark run, 7 rounds of 200 updates)"})  # fmt: skip
     paper_setting = os.path.join(BENCHMARKS, "ma_overhead_mbmpo.json")
     overhead = os.path.join(BENCHMARKS, "ma_overhead.json")
+    loop_rows = ({r["variant"]: r for r in _read(paper_setting)["rows"]}
+                 if os.path.exists(paper_setting) else {})  # fmt: skip
+    loop_every = loop_rows.get("feedback every update", {}).get("loop_ratio")
+    if out and loop_every:  # MB-MPO's whole loop beside SAC's update: a bound, not the claim
+        mean, (low, high) = loop_every["mean"], loop_every["ci"]
+        out[0]["ours"] += (f"; MB-MPO's whole training loop with MA on every update: "
+                           f"{100 * (mean - 1):.1f}% [{100 * (low - 1):.1f}%, "
+                           f"{100 * (high - 1):.1f}%] (`ma_overhead_mbmpo.json`; model fits "
+                           "and imagination included, so not an update's share)")  # fmt: skip
     if os.path.exists(paper_setting) or os.path.exists(overhead):
         out.append(training_share_claim(_read(paper_setting if os.path.exists(paper_setting)
                                               else overhead)))  # fmt: skip
@@ -600,42 +609,53 @@ def cost_claims() -> list[dict[str, Any]]:
 
 def training_share_claim(bench: dict[str, Any]) -> dict[str, Any]:
     """'< 2% of training time' judged on whole training runs (``benchmarks/ma_overhead.py``):
-    the wall time of the training loop (collection, simulation, updates, evaluation,
-    checkpoints) with the feedback term every 10 updates against MA off. The verdict reads the
-    loop: the benchmark's runs are short, and a run of the paper's length spends a negligible
-    share compiling; the whole short run, compile included, is given beside it."""
+    the wall time of the training loop (collection, simulation, model fits, imagination,
+    updates, evaluation, checkpoints) with the whole attention cost every 10 updates against MA
+    off, as paired per-round ratios. Tested only as the paper states it: MB-MPO with the whole
+    cost thinned; the verdict is the exact Jacobian's 95% interval against 2%, the Hutchinson
+    estimator's is given beside it. Short runs spend a share compiling that a run of the
+    paper's length does not: the verdict reads the loop, the whole run is given beside it."""
     rows = {r["variant"]: r for r in bench["rows"]}
-    every, amortized = rows["feedback every update"], rows["feedback every 10 updates"]
-    share = 100 * (amortized["loop_vs_off"] - 1)
     cores = bench.get("cores_used")
     where = f"{bench['machine']}" + (f", {cores} core(s) used" if cores else "")
-    ours = (f"{share:.1f}% of the training loop's wall time with the feedback term every 10 "
-            f"updates ({100 * (every['loop_vs_off'] - 1):.1f}% every update; with the compile "
-            f"of these short runs: {100 * (amortized['whole_vs_off'] - 1):.1f}% and "
-            f"{100 * (every['whole_vs_off'] - 1):.1f}%), {bench['algo']} on {bench['env']}, "
-            f"{bench['env_steps']} steps after a {bench['warmup_steps']}-step warm-up, median "
-            f"of {len(amortized['runs'])} interleaved runs; `{bench['command']}`, "
-            f"{where}")  # fmt: skip
-    whole = rows.get("whole cost every 10 updates")
     claim = {"claim": "Updating the attention cost every 10 steps makes the overhead < 2%",
-             "paper": "< 2% of training time", "ours": ours}  # fmt: skip
+             "paper": "< 2% of training time"}  # fmt: skip
+    setting = (f"{bench['algo']} on {bench['env']}, {bench['env_steps']} steps after a "
+               f"{bench['warmup_steps']}-step warm-up; `{bench['command']}`, {where}")  # fmt: skip
+
+    def ratio(name: str) -> str:
+        r = rows[name]
+        if "loop_ratio" not in r:
+            return f"{name}: {100 * (r['loop_vs_off'] - 1):.1f}% (median loop)"
+        mean, (low, high) = r["loop_ratio"]["mean"], r["loop_ratio"]["ci"]
+        return (f"{name}: {100 * (mean - 1):.1f}% [{100 * (low - 1):.1f}%, "
+                f"{100 * (high - 1):.1f}%]")  # fmt: skip
+
+    measured = "; ".join(ratio(n) for n in rows if n != "off")
+    whole = rows.get("whole cost every 10 updates")
     if bench["algo"] != "mbmpo" or whole is None or "loop_ratio" not in whole:
-        return {**claim, "verdict": "not tested",
+        return {**claim, "ours": f"{measured} of the training loop's wall time against MA off; "
+                f"{setting}", "verdict": "not tested",
                 "reason": "not as the paper states it: this times "
-                f"{bench['algo']}, not MB-MPO, and thins the Jacobian term alone (the temporal "
-                "term still runs every update): `python benchmarks/ma_overhead.py --algo mbmpo "
-                "--rounds 7 --out benchmarks/results/ma_overhead_mbmpo.json` measures it as the "
-                "paper states it"}  # fmt: skip
-    low, high = whole["loop_ratio"]["ci"]
+                f"{bench['algo']}, not MB-MPO, or does not thin the whole attention cost: "
+                "`python benchmarks/ma_overhead.py --algo mbmpo --rounds 7 --variants 'whole "
+                "cost every 10 updates' --out benchmarks/results/ma_overhead_mbmpo.json` "
+                "measures it as the paper states it"}  # fmt: skip
+
+    def verdict(row: dict[str, Any]) -> str:
+        low, high = row["loop_ratio"]["ci"]
+        return ("reproduced" if high < 1.02 else "not reproduced" if low > 1.02
+                else "inconclusive at this scale")  # fmt: skip
+
     n = len(whole["loop_ratio"]["ratios"])
-    verdict = ("reproduced" if high < 1.02 else "not reproduced" if low > 1.02
-               else "inconclusive at this scale")  # fmt: skip
-    mean = whole["loop_ratio"]["mean"]
-    return {**claim, "ours": f"{100 * (mean - 1):.1f}% [{100 * (low - 1):.1f}"
-            f"%, {100 * (high - 1):.1f}%] of the training loop with the whole attention cost "
-            f"every 10 updates (paired ratios over {n} interleaved rounds); {ours}",
-            "verdict": verdict,
-            "reason": "the 95% t interval of the paired per-round ratios against 2%"}  # fmt: skip
+    reason = ("the 95% t interval of the exact Jacobian's paired per-round loop ratios "
+              "against 2%")  # fmt: skip
+    hutchinson = rows.get("hutchinson, whole cost every 10 updates")
+    if hutchinson is not None and "loop_ratio" in hutchinson:
+        reason += f"; with the Hutchinson estimator: {verdict(hutchinson)}"
+    return {**claim, "ours": f"{measured} of the training loop's wall time against MA off "
+            f"(mean of the paired ratios over {n} interleaved rounds [95% t interval]); "
+            f"{setting}", "verdict": verdict(whole), "reason": reason}  # fmt: skip
 
 
 def latest_table(pattern: str, env: str, usable: Callable[[dict, dict], list[str]]

@@ -236,11 +236,13 @@ def test_the_overhead_claim_reads_whole_training_wall_time(tmp_path, monkeypatch
     write("sac", None)
     claim = {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]
     assert claim["verdict"] == "not tested" and "--algo mbmpo" in claim["reason"]
-    assert "1.5% of the training loop" in claim["ours"]
+    assert "feedback every 10 updates: 1.5% (median loop)" in claim["ours"]
     tight = [1.008, 1.012, 1.010, 1.009, 1.011, 1.010, 1.010]
     write("mbmpo", tight, "ma_overhead_mbmpo.json")
     claim = {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]
     assert claim["verdict"] == "reproduced" and "paired ratios over 7" in claim["ours"]
+    assert "whole cost every 10 updates: 1.0% [0.9%, 1.1%]" in claim["ours"]
+    assert "Hutchinson" not in claim["reason"]  # no such row: nothing said of it
     write("mbmpo", [r + 0.03 for r in tight], "ma_overhead_mbmpo.json")
     assert {c["claim"]: c for c in paper_claims.cost_claims()}[amortized]["verdict"] == (
         "not reproduced")  # fmt: skip
