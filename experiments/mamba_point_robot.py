@@ -255,9 +255,15 @@ def reading(result: dict, k: int, level: float = 0.05) -> list[str]:
                 text += "resolved " + ("above" if a["mean"] > 0 else "below") + " 0"
             text += (f"; the memory's share {share['mean']:.2f} [{share['ci'][0]:.2f}, "
                      f"{share['ci'][1]:.2f}] (p {share['sign_flip_p']:.3g}) ")  # fmt: skip
-            if resolved(share) and share["mean"] > 0:
-                text += (f"is resolved: the change from episode 1 to {k} depends on what the "
-                         "memory carries between episodes")  # fmt: skip
+            reset = t["memory reset"]["adaptation"]
+            if resolved(share) and share["mean"] > 0 and resolved(a) and a["mean"] > 0:
+                text += (f"is resolved: the gain from episode 1 to {k} depends on what the "
+                         "memory carries between episodes, in-context adaptation")  # fmt: skip
+            elif resolved(share) and share["mean"] > 0:
+                text += (f"is resolved, but episode {k} is not resolved above episode 1: "
+                         f"resetting the memory makes episode {k} worse (by {-reset['mean']:.2f}"
+                         "), so the policy relies on its memory without improving on episode 1 "
+                         "with it")  # fmt: skip
             elif resolved(share):
                 text += "is resolved below 0: carrying the memory makes later episodes worse"
             else:

@@ -106,7 +106,11 @@ def test_the_reading_claims_only_what_the_exact_tests_resolve() -> None:
     plain = next(line for line in lines if "mamba alpha=0:" in line)
     ma = next(line for line in lines if "mamba alpha=0.05:" in line)
     assert "no adaptation is resolved" in plain and "is not resolved" in plain
-    assert "resolved above 0" in ma and "(p 0.0312" in ma and "depends on what the memory" in ma
+    assert "resolved above 0" in ma and "(p 0.0312" in ma and "in-context adaptation" in ma
+    # the memory's share resolved without a gain: the memory is relied on, not adapted with
+    summaries["mamba alpha=0.05"] = synthetic_summaries(mixed, rising, [1.0, 2, 3, 4, 5, 6])
+    relied = next(line for line in study.reading(result, 3) if "mamba alpha=0.05:" in line)
+    assert "no adaptation is resolved" in relied and "relies on its memory" in relied
     effect = next(line for line in lines if "minus alpha 0" in line)
     assert "feedback norm -6.5" in effect and "episode 1 +0" in effect
     assert "episode 1 +0 (Welch [nan, nan], p 1, not resolved)" in effect  # equal arms
