@@ -71,7 +71,8 @@ def main() -> None:
                       "n": len(values), "ci": stats.t_interval(values),
                       "values": values}  # fmt: skip
             row[f"c_engine_{k}"] = {"mean": float(np.mean(arm["c_engine"][k])),
-                                    "ci": stats.t_interval(arm["c_engine"][k])}  # fmt: skip
+                                    "ci": stats.t_interval(arm["c_engine"][k]),
+                                    "values": [float(v) for v in arm["c_engine"][k]]}  # fmt: skip
         if alpha != "0" and "0" in arms:
             for k in METRICS:
                 a, b = row[k]["values"], [s[k] for s in arms["0"]["seeds"]]
