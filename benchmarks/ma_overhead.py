@@ -133,6 +133,8 @@ def main() -> None:
         "--steps {steps} --rounds {rounds} --placement {placement}"
     ).format(**vars(args)) + (f" --out {os.path.relpath(args.out)}" if os.path.abspath(args.out)
                               != os.path.join(RESULTS, "ma_overhead.json") else "")  # fmt: skip
+    if set(args.variants) != set(VARIANTS):
+        command += " --variants " + " ".join(f'"{n}"' for n in chosen if n != "off")
     out = {"benchmark": "ma_overhead", "command": command,
            "device": f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind})",
            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "jax": jax.__version__,

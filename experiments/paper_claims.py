@@ -589,8 +589,9 @@ def cost_claims() -> list[dict[str, Any]]:
         mean, (low, high) = loop_every["mean"], loop_every["ci"]
         out[0]["ours"] += (f"; MB-MPO's whole training loop with MA on every update: "
                            f"{100 * (mean - 1):.1f}% [{100 * (low - 1):.1f}%, "
-                           f"{100 * (high - 1):.1f}%] (`ma_overhead_mbmpo.json`; model fits "
-                           "and imagination included, so not an update's share)")  # fmt: skip
+                           f"{100 * (high - 1):.1f}%] (`ma_overhead_mbmpo.json`, the feedback "
+                           "and temporal terms; the loop also fits models and imagines, so an "
+                           "update's own share is larger)")  # fmt: skip
     if os.path.exists(paper_setting) or os.path.exists(overhead):
         out.append(training_share_claim(_read(paper_setting if os.path.exists(paper_setting)
                                               else overhead)))  # fmt: skip
