@@ -220,12 +220,8 @@ def ma_effects(summaries: dict[str, dict]) -> dict[str, dict]:
             mine, theirs = by_condition["as trained"], base[task_set]["as trained"]
             out[arm][task_set] = {}
             for metric in MA_METRICS:
-                a, b = mine[metric]["values"], theirs[metric]["values"]
-                out[arm][task_set][metric] = {
-                    "diff": float(np.mean(a) - np.mean(b)),
-                    "welch_ci": [float(x) for x in stats.welch_ci(a, b)],
-                    "permutation_p": stats.permutation_p(a, b),
-                }
+                out[arm][task_set][metric] = stats.difference(mine[metric]["values"],
+                                                              theirs[metric]["values"])  # fmt: skip
     return out
 
 

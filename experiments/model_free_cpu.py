@@ -76,8 +76,7 @@ def main() -> None:
         if alpha != "0" and "0" in arms:
             for k in METRICS:
                 a, b = row[k]["values"], [s[k] for s in arms["0"]["seeds"]]
-                row[f"{k}_vs_alpha0"] = {"welch_ci": list(stats.welch_ci(a, b)),
-                                         "permutation_p": stats.permutation_p(a, b)}  # fmt: skip
+                row[f"{k}_vs_alpha0"] = stats.difference(a, b)
         rows.append(row)
     command = (f"python experiments/model_free_cpu.py --algo {args.algo} --env {args.env} "
                f"--seeds {args.seeds} --alphas "

@@ -50,9 +50,7 @@ def compare(ours: list[float], sb3: list[float]) -> dict[str, Any]:
     (``None`` where either side has fewer than 2 seeds)."""
     if len(ours) < 2 or len(sb3) < 2:
         return {"diff": None, "welch_ci": None, "permutation_p": None}
-    return {"diff": float(np.mean(ours) - np.mean(sb3)),
-            "welch_ci": [float(x) for x in stats.welch_ci(ours, sb3)],
-            "permutation_p": stats.permutation_p(ours, sb3)}  # fmt: skip
+    return stats.difference(ours, sb3)
 
 
 def arm_cell(values: list[float]) -> str:

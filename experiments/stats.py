@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.stats
@@ -173,6 +174,14 @@ def welch_ci(a: Sequence[float], b: Sequence[float], level: float = 0.95) -> tup
         return float("nan"), float("nan")
     ci = scipy.stats.ttest_ind(x, y, equal_var=False).confidence_interval(level)
     return float(ci.low), float(ci.high)
+
+
+def difference(a: Sequence[float], b: Sequence[float]) -> dict[str, Any]:
+    """mean(a) - mean(b) of two independent samples (seeds of two arms): the difference,
+    Welch's 95% interval and the exact permutation p, as one record."""
+    return {"diff": float(np.mean(a) - np.mean(b)),
+            "welch_ci": [float(x) for x in welch_ci(a, b)],
+            "permutation_p": permutation_p(a, b)}  # fmt: skip
 
 
 def welch_p_from_stats(mean_a: float, std_a: float, n_a: int, mean_b: float, std_b: float,

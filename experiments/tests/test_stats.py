@@ -132,3 +132,10 @@ def test_t_interval_against_a_hand_worked_example():
     assert low == pytest.approx(3 - 1.963243, abs=1e-6)
     assert high == pytest.approx(3 + 1.963243, abs=1e-6)
     assert stats.t_interval([2.5]) == [2.5, 2.5]
+
+
+def test_difference_is_the_welch_interval_and_the_exact_permutation_p():
+    d = stats.difference([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])
+    assert d["diff"] == pytest.approx(-3.0)
+    assert d["welch_ci"] == pytest.approx(list(stats.welch_ci([1, 2, 3], [4, 5, 6])))
+    assert d["permutation_p"] == pytest.approx(2 / 20)  # 2 of C(6, 3) relabelings as extreme
