@@ -19,6 +19,7 @@ are taken from the template on restore.
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import re
@@ -114,8 +115,23 @@ class _QuietAbsl:
         self.level = self.logger.level
         self.logger.setLevel(logging.CRITICAL)
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, kind: Any, *exc: Any) -> None:
+        if kind is not None:
+            gc.collect()  # the failed operation's abandoned futures report now, while quiet
         self.logger.setLevel(self.level)
+
+
+class _AbandonedReads(logging.Filter):
+    """Drops asyncio's "Future exception was never retrieved" for a tensorstore read that
+    failed: orbax abandons its other reads once one fails, and each logs, whenever it is
+    collected, the error our one line (CheckpointError) already reports."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        return not ("exception was never retrieved" in text and "OCDBT" in text)
+
+
+logging.getLogger("asyncio").addFilter(_AbandonedReads())
 
 
 # Printed by orbax's asyncio machinery when a read or write fails: tensorstore's callbacks reach

@@ -4,6 +4,7 @@ or half-written checkpoints, a cut metrics line. Each ends in one line and keeps
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -122,6 +123,30 @@ def test_resume_falls_back_past_an_unreadable_checkpoint(tmp_path, capsys):
     assert 300 in checkpoint.snapshot_steps(out)
     lines = open(os.path.join(out, "metrics.jsonl")).read().splitlines()
     assert all(json.loads(line) for line in lines) and len(lines) == 2
+
+
+def test_a_failed_reads_abandoned_futures_log_nothing(caplog):
+    """Orbax abandons its other reads once one fails; asyncio logs each as "exception was never
+    retrieved" whenever it is collected. Those of a tensorstore (OCDBT) read are dropped: the
+    one-line CheckpointError already says it. Any other never-retrieved exception still logs."""
+    import asyncio
+    import gc
+
+    def abandon(message: str) -> None:
+        loop = asyncio.new_event_loop()
+        future = loop.create_future()
+        future.set_exception(ValueError(message))
+        loop.close()
+        del future
+        gc.collect()
+
+    with caplog.at_level(logging.ERROR, logger="asyncio"):
+        abandon('OUT_OF_RANGE: Error reading "x" in OCDBT database at local file "y"')
+        assert not caplog.records
+        abandon("something else failed")
+        assert [r.getMessage().splitlines()[0] for r in caplog.records] == [
+            "Future exception was never retrieved"
+        ]
 
 
 _DIE_IN_SAVE = """
