@@ -280,10 +280,10 @@ SMALL_RUN = {"physics": "fast", "max_episode_steps": 60, "ma_alpha": 0.05}
 
 
 @pytest.mark.slow
-def test_dreamer_run_evaluates_meta_tests_and_refuses_export(tmp_path, capsys):
-    """A DreamerV3 run goes through the tools every algorithm's runs go through: ``evaluate``
-    and ``meta-test`` (its adaptation step changes the policy); ``export`` (feedforward actors
-    for numpy) refuses it in one line. (Training: the extended CLI test; analyze: below.)"""
+def test_dreamer_run_evaluates_and_refuses_export(tmp_path, capsys):
+    """A DreamerV3 run goes through the tools every algorithm's runs go through: ``evaluate``;
+    ``export`` (feedforward actors for numpy) refuses it in one line. (Training: the extended
+    CLI test; meta-test and analyze: below.)"""
     import json
 
     from conftest import run_cli
@@ -295,6 +295,21 @@ def test_dreamer_run_evaluates_meta_tests_and_refuses_export(tmp_path, capsys):
     metrics = json.loads(out.out)
     assert metrics["step"] == 300 and np.isfinite(metrics["return"])
     assert metrics["feedback_norm"] > 0 and metrics["energy"] > 0
+    status, out = run_cli(["export", run, "--out", str(tmp_path / "p.npz")], capsys)
+    assert status == 2 and "recurrent" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.extended  # compiles DreamerV3's learner inside the adaptation program (a minute);
+# CI meta-tests SAC and MB-MPO runs (tests/test_meta_test.py) and MAMBA's in-context ones
+def test_dreamer_run_meta_tests(tmp_path, capsys):
+    """``meta-test`` on a DreamerV3 run: its adaptation step changes the policy on each task."""
+    import json
+
+    from conftest import run_cli
+
+    run = str(tmp_path / "run")
+    _initial_run(run, False, **SMALL_RUN)
     meta = ["meta-test", run, "--variant", "mass", "--adapt-steps", "1", "--episodes", "1",
             "--updates-per-step", "2", "--json"]  # fmt: skip
     status, out = run_cli(meta, capsys)
@@ -304,8 +319,6 @@ def test_dreamer_run_evaluates_meta_tests_and_refuses_export(tmp_path, capsys):
     for row in result["tasks"]:
         assert len(row["feedback_norm_curve"]) == 2
         assert row["feedback_norm_curve"][0] != row["feedback_norm_curve"][1]  # adapted
-    status, out = run_cli(["export", run, "--out", str(tmp_path / "p.npz")], capsys)
-    assert status == 2 and "recurrent" in out.err and len(out.err.strip().splitlines()) == 1
 
 
 @pytest.mark.slow

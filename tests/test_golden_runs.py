@@ -22,6 +22,11 @@ import record_golden  # noqa: E402 - from tests/data
 
 NAMES = sorted(p.stem for p in record_golden.GOLDEN.glob("*.json"))
 
+# Variants whose parts CI pins elsewhere: mbpo's model fits and imagination are mbmpo's (its
+# golden run stays), the VPG inner and TRPO outer steps have tests of their own
+# (tests/test_meta_step.py). Their golden runs: pytest -m extended.
+EXTENDED = {"mbpo", "mbmpo_vpg_trpo"}
+
 
 def test_every_algorithm_has_a_golden_run():
     assert set(NAMES) == set(record_golden.RUNS)
@@ -59,7 +64,9 @@ def test_the_cross_platform_tolerance_catches_a_changed_computation():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.extended) if n in EXTENDED else n for n in NAMES]
+)
 def test_golden_run_is_unchanged(name):
     golden = json.loads((record_golden.GOLDEN / f"{name}.json").read_text())
     here = record_golden.platform_key()

@@ -130,8 +130,9 @@ def test_analyze_accepts_the_runs_evaluate_accepts(smoke_runs, tmp_path, capsys)
     assert main(["evaluate", str(run), "--episodes", "1", "--json"]) == 0
     evaluated = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert evaluated["step"] == 300
-    argv = ["analyze", str(run), "--out", str(tmp_path / "r"), "--episodes", "1", "--bins", "3",
-            "--grid", "2", "--grid-rollouts", "1", "--grid-steps", "5"]  # fmt: skip
+    # The settings of the test above: its compiled programs serve this analysis too.
+    argv = ["analyze", str(run), "--out", str(tmp_path / "r"), "--episodes", "2", "--bins", "5",
+            "--grid", "2", "--grid-rollouts", "2", "--grid-steps", "10"]  # fmt: skip
     assert main(argv) == 0, capsys.readouterr().err
     assert (tmp_path / "r" / "report.html").is_file()
 
