@@ -48,7 +48,8 @@ VARIANTS = {
                                                 "ma.interval": 10, "ma.interval_terms": "both"},
     # A diagnostic: MA on, its whole cost computed on the first update only. What remains over
     # "off" is what the skipped updates still pay (the lax.cond, the state MA keeps).
-    "whole cost skipped": {"ma.alpha": 1.0, "ma.interval": 10**9, "ma.interval_terms": "both"},
+    "whole cost skipped": {"ma.alpha": 1.0, "ma.interval": 10**9, "ma.interval_terms": "both",
+                           "ma.interval_scaling": False},
 }  # fmt: skip
 # "feedback every update" is MA's default mode: the Jacobian (feedback) and temporal terms.
 

@@ -160,6 +160,29 @@ def test_interval_keeps_a_gradient_with_scaled_weight(problem):
     assert float(jnp.max(jnp.abs(g_off))) == 0.0
 
 
+def test_a_skipped_update_fills_no_per_state_residuals(problem):
+    """Differentiated, each thinned term's ``cond`` returns what its backward pass needs; the
+    skipping branch fills it with zeros. The term is rematerialized, so that is at most its
+    inputs (parameters, previous parameters, states), not the Jacobian's states x outputs x
+    inputs intermediates (1,546 numbers here without it, against a bound of 198)."""
+    params, obs = problem
+    prev = jax.tree.map(lambda x: x - 0.05, params)
+    cfg = ma.MAConfig(alpha=0.5, mode="full", estimator="jacfwd", subsample=0, interval=10,
+                      interval_terms="both")  # fmt: skip
+
+    def loss(p, step):
+        return ma.penalty(cfg, tanh_linear, p, obs, jax.random.PRNGKey(0), prev_params=prev,
+                          update_step=step, alpha=cfg.alpha)[0]  # fmt: skip
+
+    jaxpr = jax.make_jaxpr(jax.grad(loss))(params, 3).jaxpr
+    conds = [e for e in jaxpr.eqns if e.primitive.name == "cond"]
+    assert len(conds) == 4  # two terms: each a forward cond and its transpose
+    n_params = sum(x.size for x in jax.tree.leaves(params))
+    bound = 2 * n_params + obs.size + 2
+    for eqn in conds:
+        assert sum(int(np.prod(v.aval.shape)) for v in eqn.outvars) <= bound
+
+
 def test_caps_penalty(problem):
     params, obs = problem
     cfg = ma.CAPSConfig(lambda_t=1.0, lambda_s=0.0, sigma=0.2)
