@@ -592,9 +592,12 @@ def cost_claims() -> list[dict[str, Any]]:
                            f"{100 * (high - 1):.1f}%] (`ma_overhead_mbmpo.json`, the feedback "
                            "and temporal terms; the loop also fits models and imagines, so an "
                            "update's own share is larger)")  # fmt: skip
-    if os.path.exists(paper_setting) or os.path.exists(overhead):
-        out.append(training_share_claim(_read(paper_setting if os.path.exists(paper_setting)
-                                              else overhead)))  # fmt: skip
+    # The thinned variants timed since a skipped update stopped filling the Jacobian's
+    # residuals (min_attention._thinned) judge the claim; before it, the 7-round file did.
+    thinned = os.path.join(BENCHMARKS, "ma_overhead_mbmpo_thinned.json")
+    judged = next((p for p in (thinned, paper_setting, overhead) if os.path.exists(p)), None)
+    if judged is not None:
+        out.append(training_share_claim(_read(judged)))
     else:
         out.append(
             {
