@@ -19,7 +19,6 @@ are taken from the template on restore.
 
 from __future__ import annotations
 
-import gc
 import logging
 import os
 import re
@@ -115,9 +114,7 @@ class _QuietAbsl:
         self.level = self.logger.level
         self.logger.setLevel(logging.CRITICAL)
 
-    def __exit__(self, kind: Any, *exc: Any) -> None:
-        if kind is not None:
-            gc.collect()  # the failed operation's abandoned futures report now, while quiet
+    def __exit__(self, *exc: Any) -> None:
         self.logger.setLevel(self.level)
 
 
